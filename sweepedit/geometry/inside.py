@@ -1,0 +1,147 @@
+"""The exact inside test of DESIGN.md section 1: the ground truth for sweeps.
+
+A point p is inside a primitive when, for some t in [0, 1], p lies in the profile plane
+at t (h(t) = (p - s(t)).T(t) = 0) and its in-plane coordinates, divided by f(t), fall
+inside the superellipse. h is sampled densely, its sign changes are bracketed and
+refined by regula falsi on the exact curve, and every root is tested.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from sweepedit.geometry.model import SweepPrimitive
+from sweepedit.geometry.sweep import axis_frames, scaling_factor, superellipse_level
+
+T_SAMPLES = 256
+REFINE_STEPS = 2
+_CHUNK = 1 << 15
+
+
+def _arrays(p: SweepPrimitive) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return (p.control_points[None], p.profile[None],
+            np.asarray(p.scaling, dtype=np.float64).reshape(1, -1))
+
+
+def _plane_offset(points: np.ndarray, cps: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """h(t) for paired points (R, 3) and parameters t (R,) -> (R,)."""
+    fr = axis_frames(cps, t)
+    return np.einsum("ij,ij->i", points - fr.points[0], fr.T[0])
+
+
+def _bounding_box(cps: np.ndarray, profile: np.ndarray, scaling: np.ndarray,
+                  t: np.ndarray, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A box that holds the whole solid: axis samples padded by the largest profile radius."""
+    f = scaling_factor(scaling, t)[0]
+    radius = float(np.max(f)) * float(np.hypot(profile[0, 0], profile[0, 1]))
+    # The polyline through samples can cut inside the curve by at most the sagitta;
+    # pad by the largest gap between samples to stay conservative.
+    gap = float(np.max(np.linalg.norm(np.diff(centres, axis=0), axis=1)))
+    pad = radius + gap + 1e-9
+    return centres.min(axis=0) - pad, centres.max(axis=0) + pad
+
+
+def inside_primitive(points: np.ndarray, primitive: SweepPrimitive,
+                     t_samples: int = T_SAMPLES) -> np.ndarray:
+    """Exact occupancy of one primitive: points (N, 3) -> bool (N,)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    cps, profile, scaling = _arrays(primitive)
+    t = np.linspace(0.0, 1.0, t_samples)
+    fr = axis_frames(cps, t)
+    centres, tangents = fr.points[0], fr.T[0]  # (T, 3)
+    lo, hi = _bounding_box(cps, profile, scaling, t, centres)
+    result = np.zeros(len(points), dtype=bool)
+    in_box = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+    # Only points within the largest profile radius (plus the sample gap) of the axis
+    # can be inside: this cuts the box down to a tube before the dense work below.
+    gap = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    reach = scaling_factor(scaling, t)[0] * np.hypot(profile[0, 0], profile[0, 1])
+    bound = float(reach.max() + gap.max()) + 1e-9
+    dist, _ = cKDTree(centres).query(points[in_box], k=1, distance_upper_bound=bound)
+    candidates = in_box[np.isfinite(dist)]
+    offsets = np.einsum("ij,ij->i", centres, tangents)  # s(t).T(t), (T,)
+    # A plane crossing at t can only be inside if p is within reach of s(t): the
+    # largest profile radius there plus the gap to the next sample.
+    reach2 = (np.maximum(reach[:-1], reach[1:]) + gap) ** 2  # (T-1,)
+    # h and the squared distance to every axis sample come out of one float32 matmul
+    # each, with homogeneous coordinates: [p, 1] @ [T; -s.T] and [p, |p|^2, 1] @ [-2s; 1; |s|^2].
+    # float32 only brackets the roots; they are refined in float64 below.
+    plane_mat = np.vstack([tangents.T, -offsets[None, :]]).astype(np.float32)  # (4, T)
+    dist_mat = np.vstack([-2.0 * centres.T, np.ones((1, t_samples)),
+                          np.einsum("ij,ij->i", centres, centres)[None, :]]).astype(np.float32)
+    for start in range(0, len(candidates), _CHUNK):
+        idx = candidates[start:start + _CHUNK]
+        p = points[idx]
+        ones = np.ones((len(idx), 1))
+        h = np.hstack([p, ones]).astype(np.float32) @ plane_mat  # (C, T)
+        dist2 = np.hstack([p, np.einsum("ij,ij->i", p, p)[:, None], ones]).astype(
+            np.float32) @ dist_mat
+        sign = h >= 0.0
+        crossing = (sign[:, :-1] != sign[:, 1:]) & (dist2[:, :-1] <= reach2[None, :])
+        rows, cols = np.nonzero(crossing)
+        if rows.size == 0:
+            continue
+        pr = p[rows]
+        roots = _refine_roots(pr, cps, t[cols], t[cols + 1],
+                              _plane_offset(pr, cps, t[cols]), _plane_offset(pr, cps, t[cols + 1]))
+        hit = _inside_profile_at(pr, cps, profile, scaling, roots)
+        result[idx[rows[hit]]] = True
+    return result
+
+
+def _refine_roots(p: np.ndarray, cps: np.ndarray, t0: np.ndarray, t1: np.ndarray,
+                  h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
+    """Roots of h in brackets [t0, t1] (R,) by regula falsi on the exact curve."""
+    for _ in range(REFINE_STEPS):
+        tm = t0 + (t1 - t0) * h0 / np.where(h0 - h1 == 0.0, 1.0, h0 - h1)
+        tm = np.clip(tm, np.minimum(t0, t1), np.maximum(t0, t1))
+        hm = _plane_offset(p, cps, tm)
+        left = np.sign(hm) == np.sign(h0)
+        t0 = np.where(left, tm, t0)
+        h0 = np.where(left, hm, h0)
+        t1 = np.where(left, t1, tm)
+        h1 = np.where(left, h1, hm)
+    return t0 + (t1 - t0) * h0 / np.where(h0 - h1 == 0.0, 1.0, h0 - h1)
+
+
+def _inside_profile_at(p: np.ndarray, cps: np.ndarray, profile: np.ndarray,
+                       scaling: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Is p (R, 3) inside the scaled profile in the plane at t (R,)? -> bool (R,)."""
+    fr = axis_frames(cps, t)
+    f = scaling_factor(scaling, t)[0]
+    rel = p - fr.points[0]
+    x = np.einsum("ij,ij->i", rel, fr.U[0]) / f
+    y = np.einsum("ij,ij->i", rel, fr.V[0]) / f
+    return superellipse_level(x[None], y[None], profile)[0] <= 1.0
+
+
+def inside_primitives(points: np.ndarray, primitives: Sequence[SweepPrimitive],
+                      t_samples: int = T_SAMPLES) -> np.ndarray:
+    """Exact occupancy of each primitive: points (N, 3) -> bool (K, N)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    out = np.zeros((len(primitives), len(points)), dtype=bool)
+    for k, prim in enumerate(primitives):
+        out[k] = inside_primitive(points, prim, t_samples)
+    return out
+
+
+def inside_union(points: np.ndarray, primitives: Sequence[SweepPrimitive],
+                 t_samples: int = T_SAMPLES) -> np.ndarray:
+    """Exact occupancy of the union: points (N, 3) -> bool (N,)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    result = np.zeros(len(points), dtype=bool)
+    for prim in primitives:
+        todo = np.flatnonzero(~result)
+        if todo.size == 0:
+            break
+        result[todo] |= inside_primitive(points[todo], prim, t_samples)
+    return result
+
+
+def grid_points(resolution: int = 64) -> np.ndarray:
+    """Cell centres of a resolution^3 grid over [-0.5, 0.5]^3, (R^3, 3), x-major ([ix, iy, iz])."""
+    c = (np.arange(resolution) + 0.5) / resolution - 0.5
+    return np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1).reshape(-1, 3)

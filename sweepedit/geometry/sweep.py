@@ -1,0 +1,196 @@
+"""The sweep math of DESIGN.md section 1, written once for numpy and torch.
+
+Every function takes arrays of either library (through array_api_compat) and returns
+arrays of the same library, so the mesher and the exact inside test (numpy, float64)
+and the differentiable fitting code (torch, with autograd) share one definition.
+
+Shapes: K primitives, n control points, M parameter values t, P profile points.
+  control_points (K, n, 3); t (M,); profile [a, b, d] (K, 3); scaling (K, k).
+
+Frames are rotation-minimising. A clamped quadratic B-spline is a chain of quadratic
+Bezier segments, each of which lies in a plane; along a planar curve the rotation-
+minimising frame is the initial frame turned by the minimal rotation that takes the
+initial tangent to the current one. So the frames are exact and closed form within a
+segment, and a loop runs only over the n - 2 segments, not over the stations.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+from array_api_compat import array_namespace
+
+# Keeps divisions and powers finite (and their gradients) at degenerate points.
+_EPS = 1e-9
+_POW_EPS = 1e-6
+
+
+class AxisFrames(NamedTuple):
+    """Axis points and rotation-minimising frames, each (K, M, 3); U x V = T."""
+
+    points: Any
+    U: Any
+    V: Any
+    T: Any
+
+
+def _dot(xp: Any, u: Any, v: Any) -> Any:
+    return xp.sum(u * v, axis=-1, keepdims=True)
+
+
+def _cross(xp: Any, u: Any, v: Any) -> Any:
+    return xp.linalg.cross(u, v)
+
+
+def _normalize(xp: Any, v: Any, eps: float = _EPS) -> Any:
+    return v / xp.sqrt(_dot(xp, v, v) + eps * eps)
+
+
+def bezier_segments(control_points: Any) -> tuple[Any, Any, Any]:
+    """Bezier control points of the clamped uniform quadratic B-spline's segments.
+
+    control_points: (K, n, 3) -> P0, P1, P2 each (K, n - 2, 3).
+    With uniform interior knots, segment j runs from the midpoint of c_j, c_{j+1}
+    (c_0 for the first) over c_{j+1} to the midpoint of c_{j+1}, c_{j+2} (c_{n-1} last).
+    """
+    xp = array_namespace(control_points)
+    c = control_points
+    mids = (c[:, 1:-2, :] + c[:, 2:-1, :]) / 2.0  # (K, n-3, 3): joints between segments
+    p0 = xp.concat([c[:, :1, :], mids], axis=1)
+    p1 = c[:, 1:-1, :]
+    p2 = xp.concat([mids, c[:, -1:, :]], axis=1)
+    return p0, p1, p2
+
+
+def _segment_index(xp: Any, t: Any, m: int) -> tuple[Any, Any]:
+    """Segment j (M,) int and local parameter u (M,) in [0, 1] of global t (M,)."""
+    tm = xp.clip(t, 0.0, 1.0) * m
+    j = xp.clip(xp.floor(tm), 0, m - 1)
+    u = tm - j
+    return xp.astype(j, xp.int64), u
+
+
+def _minimal_rotation(xp: Any, a: Any, b: Any, v: Any) -> Any:
+    """Rotate v by the smallest rotation taking unit vector a to unit vector b.
+
+    R v = c v + w x v + w (w.v) / (1 + c), w = a x b, c = a.b (Rodrigues without
+    normalising the axis, so it stays smooth as a -> b). All (..., 3).
+    """
+    w = _cross(xp, a, b)
+    c = _dot(xp, a, b)
+    return c * v + _cross(xp, w, v) + w * _dot(xp, w, v) / xp.clip(1.0 + c, min=1e-6)
+
+
+def initial_frame(T0: Any) -> tuple[Any, Any]:
+    """The frame at t = 0 as in DESIGN.md / the official SweepNet code.
+
+    T0: (..., 3) unit tangent -> U0, V0 (..., 3). W = (-T0.y, T0.x, 0), or (0, 1, 0)
+    when that vanishes (tangent along z); V0 = normalize(T0 x W); U0 = V0 x T0.
+    """
+    xp = array_namespace(T0)
+    zero = xp.zeros_like(T0[..., :1])
+    W = xp.concat([-T0[..., 1:2], T0[..., 0:1], zero], axis=-1)
+    degenerate = _dot(xp, W, W) < 1e-12
+    W = xp.where(degenerate, xp.concat([zero, zero + 1.0, zero], axis=-1), W)
+    V0 = _normalize(xp, _cross(xp, T0, W))
+    U0 = _cross(xp, V0, T0)
+    return U0, V0
+
+
+def _segment_tangent(xp: Any, d_start: Any, chord: Any) -> Any:
+    """Unit tangent from a derivative, falling back on the chord where it vanishes."""
+    small = _dot(xp, d_start, d_start) < 1e-18
+    return _normalize(xp, xp.where(small, chord, d_start))
+
+
+def axis_frames(control_points: Any, t: Any) -> AxisFrames:
+    """Points and rotation-minimising frames of the axes at parameters t.
+
+    control_points: (K, n, 3); t: (M,) in [0, 1] -> AxisFrames, each (K, M, 3).
+    """
+    xp = array_namespace(control_points, t)
+    p0, p1, p2 = bezier_segments(control_points)
+    m = p0.shape[1]
+    d0 = p1 - p0  # derivative / 2 at u = 0 of each segment, (K, m, 3)
+    d1 = p2 - p1  # derivative / 2 at u = 1
+    chord = p2 - p0
+    t_start = _segment_tangent(xp, d0, chord)
+    t_end = _segment_tangent(xp, d1, chord)
+
+    # Carry the frame across segments: the B-spline is C1, so each segment starts
+    # with the tangent the previous one ended with.
+    U, V = initial_frame(t_start[:, 0, :])
+    starts_u, starts_v = [U], [V]
+    for j in range(1, m):
+        U = _minimal_rotation(xp, t_start[:, j - 1, :], t_end[:, j - 1, :], U)
+        V = _minimal_rotation(xp, t_start[:, j - 1, :], t_end[:, j - 1, :], V)
+        starts_u.append(U)
+        starts_v.append(V)
+    seg_u = xp.stack(starts_u, axis=1)  # (K, m, 3)
+    seg_v = xp.stack(starts_v, axis=1)
+
+    j, u = _segment_index(xp, t, m)
+    take = lambda arr: xp.take(arr, j, axis=1)  # noqa: E731  (K, m, 3) -> (K, M, 3)
+    a0, a1, a2 = take(p0), take(p1), take(p2)
+    u3 = u[None, :, None]
+    points = (1.0 - u3) ** 2 * a0 + 2.0 * u3 * (1.0 - u3) * a1 + u3**2 * a2
+    deriv = (1.0 - u3) * (a1 - a0) + u3 * (a2 - a1)
+    T = _segment_tangent(xp, deriv, a2 - a0)
+    ts = take(t_start)
+    U = _minimal_rotation(xp, ts, T, take(seg_u))
+    V = _minimal_rotation(xp, ts, T, take(seg_v))
+    return AxisFrames(points, U, V, T)
+
+
+def axis_points(control_points: Any, t: Any) -> Any:
+    """Points of the axes: control_points (K, n, 3), t (M,) -> (K, M, 3)."""
+    xp = array_namespace(control_points, t)
+    p0, p1, p2 = bezier_segments(control_points)
+    j, u = _segment_index(xp, t, p0.shape[1])
+    u3 = u[None, :, None]
+    a0, a1, a2 = (xp.take(p, j, axis=1) for p in (p0, p1, p2))
+    return (1.0 - u3) ** 2 * a0 + 2.0 * u3 * (1.0 - u3) * a1 + u3**2 * a2
+
+
+def scaling_factor(scaling: Any, t: Any) -> Any:
+    """f(t) = 1 + s1 t + ... + sk t^k: scaling (K, k), t (M,) -> (K, M)."""
+    xp = array_namespace(scaling, t)
+    f = xp.ones((scaling.shape[0], t.shape[0]), dtype=t.dtype, device=getattr(t, "device", None))
+    power = xp.ones_like(t)
+    for i in range(scaling.shape[1]):
+        power = power * t
+        f = f + scaling[:, i : i + 1] * power[None, :]
+    return f
+
+
+def superellipse(theta: Any, profile: Any) -> tuple[Any, Any]:
+    """Profile points x(θ) = a sgn(cos θ)|cos θ|^(2/d), y likewise with b and sin.
+
+    theta (P,), profile (K, 3) = [a, b, d] -> x, y each (K, P).
+    """
+    xp = array_namespace(theta, profile)
+    a, b, d = profile[:, 0:1], profile[:, 1:2], profile[:, 2:3]
+    c, s = xp.cos(theta)[None, :], xp.sin(theta)[None, :]
+    e = 2.0 / d
+    x = a * xp.sign(c) * xp.clip(xp.abs(c), min=_POW_EPS) ** e
+    y = b * xp.sign(s) * xp.clip(xp.abs(s), min=_POW_EPS) ** e
+    return x, y
+
+
+def superellipse_level(x: Any, y: Any, profile: Any) -> Any:
+    """|x/a|^d + |y/b|^d (<= 1 inside): x, y (K, ...) and profile (K, 3) -> (K, ...)."""
+    xp = array_namespace(x, y, profile)
+    extra = (1,) * (x.ndim - 1)
+    a = xp.reshape(profile[:, 0], (-1, *extra))
+    b = xp.reshape(profile[:, 1], (-1, *extra))
+    d = xp.reshape(profile[:, 2], (-1, *extra))
+    return (xp.clip(xp.abs(x / a), min=1e-12) ** d) + (xp.clip(xp.abs(y / b), min=1e-12) ** d)
+
+
+def sweep_surface(control_points: Any, profile: Any, scaling: Any, t: Any, theta: Any) -> Any:
+    """Points on the side surface: stations t (M,), profile angles theta (P,) -> (K, M, P, 3)."""
+    fr = axis_frames(control_points, t)
+    x, y = superellipse(theta, profile)  # (K, P)
+    f = scaling_factor(scaling, t)[:, :, None, None]  # (K, M, 1, 1)
+    offset = x[:, None, :, None] * fr.U[:, :, None, :] + y[:, None, :, None] * fr.V[:, :, None, :]
+    return fr.points[:, :, None, :] + f * offset
