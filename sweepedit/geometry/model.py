@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from sweepedit.errors import InvalidPrimitiveError
+from sweepedit.geometry.sweep import axis_curvature, scaling_factor
 
 # Parameter ranges of DESIGN.md section 1.
 A_RANGE = (0.01, 0.5)
@@ -193,3 +194,14 @@ class Abstraction:
     @classmethod
     def from_primitives(cls, primitives: Iterable[SweepPrimitive], **kwargs: Any) -> Abstraction:
         return cls(primitives=list(primitives), **kwargs)
+
+
+def folds_onto_itself(primitive: SweepPrimitive, samples: int = 256) -> bool:
+    """True when the profile reaches past the axis' centre of curvature somewhere, so
+    the swept surface self-intersects on the inner side of a bend (the solid is still
+    well defined, but its mesh is not an embedding there)."""
+    t = np.linspace(0.0, 1.0, samples)
+    kappa = axis_curvature(primitive.control_points[None], t)[0]
+    f = scaling_factor(np.asarray(primitive.scaling, dtype=np.float64).reshape(1, -1), t)[0]
+    reach = f * max(primitive.a, primitive.b)
+    return bool(np.any(reach * kappa >= 1.0))

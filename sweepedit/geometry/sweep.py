@@ -194,3 +194,21 @@ def sweep_surface(control_points: Any, profile: Any, scaling: Any, t: Any, theta
     f = scaling_factor(scaling, t)[:, :, None, None]  # (K, M, 1, 1)
     offset = x[:, None, :, None] * fr.U[:, :, None, :] + y[:, None, :, None] * fr.V[:, :, None, :]
     return fr.points[:, :, None, :] + f * offset
+
+
+def axis_curvature(control_points: Any, t: Any) -> Any:
+    """Curvature |s' x s''| / |s'|^3 of the axes: control_points (K, n, 3), t (M,) -> (K, M).
+
+    A sweep whose profile reaches farther from the axis than 1 / curvature folds
+    onto itself on the inner side of the bend.
+    """
+    xp = array_namespace(control_points, t)
+    p0, p1, p2 = bezier_segments(control_points)
+    j, u = _segment_index(xp, t, p0.shape[1])
+    a0, a1, a2 = (xp.take(p, j, axis=1) for p in (p0, p1, p2))
+    u3 = u[None, :, None]
+    d1 = 2.0 * ((1.0 - u3) * (a1 - a0) + u3 * (a2 - a1))
+    d2 = 2.0 * (a2 - 2.0 * a1 + a0)
+    num = xp.sqrt(_dot(xp, _cross(xp, d1, d2), _cross(xp, d1, d2)))[..., 0]
+    speed = xp.sqrt(_dot(xp, d1, d1))[..., 0]
+    return num / xp.clip(speed, min=_EPS) ** 3

@@ -1,0 +1,206 @@
+"""The sweep math, the mesher and the exact inside test against independent truths."""
+
+from __future__ import annotations
+
+import igl
+import numpy as np
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from scipy.interpolate import BSpline
+from scipy.special import gamma
+
+from sweepedit.errors import InvalidPrimitiveError
+from sweepedit.geometry.inside import grid_points, inside_primitive, inside_union
+from sweepedit.geometry.mesher import sweep_mesh, sweep_meshes, union_mesh
+from sweepedit.geometry.model import SweepPrimitive, folds_onto_itself
+from sweepedit.geometry.sweep import axis_frames, axis_points, initial_frame
+
+
+def superellipse_area(a: float, b: float, d: float) -> float:
+    return 4.0 * a * b * gamma(1.0 + 1.0 / d) ** 2 / gamma(1.0 + 2.0 / d)
+
+
+def straight(n: int = 3, length: float = 0.6, a: float = 0.1, b: float = 0.05, d: float = 2.0,
+             direction=(0.3, -0.2, 0.9)) -> SweepPrimitive:
+    u = np.asarray(direction, float) / np.linalg.norm(direction)
+    cps = (np.linspace(-0.5, 0.5, n)[:, None] * length) * u
+    return SweepPrimitive(cps, a=a, b=b, degree=d, scaling=(0.0, 0.0))
+
+
+@pytest.mark.parametrize("d", [0.3, 0.5, 1.0, 2.0, 3.3, 5.0])
+@pytest.mark.parametrize("n", [3, 5])
+def test_straight_sweep_volume_is_length_times_profile_area(d: float, n: int) -> None:
+    p = straight(n=n, d=d)
+    mesh = sweep_mesh(p, stations=3, profile_points=1024).to_trimesh()
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    expected = 0.6 * superellipse_area(0.1, 0.05, d)
+    assert mesh.volume == pytest.approx(expected, rel=0.01)
+
+
+def test_volume_with_linear_scaling_is_integral_of_scaled_area() -> None:
+    # f(t) = 1 + s1 t: volume = L * A * ∫ f^2 dt = L * A * (1 + s1 + s1^2 / 3)
+    p = straight(d=2.0)
+    p.scaling = (0.4,)
+    mesh = sweep_mesh(p, stations=200, profile_points=512).to_trimesh()
+    expected = 0.6 * np.pi * 0.1 * 0.05 * (1 + 0.4 + 0.16 / 3)
+    assert mesh.volume == pytest.approx(expected, rel=0.01)
+
+
+@pytest.mark.parametrize("n", [3, 4, 5, 8])
+def test_axis_matches_scipy_clamped_bspline(n: int) -> None:
+    rng = np.random.default_rng(n)
+    cps = rng.uniform(-0.5, 0.5, (1, n, 3))
+    knots = np.concatenate([[0, 0], np.linspace(0, 1, n - 1), [1, 1]])
+    ref = BSpline(knots, cps[0], 2)
+    t = np.linspace(0, 1, 301)
+    np.testing.assert_allclose(axis_points(cps, t)[0], ref(t), atol=1e-12)
+    tangent = ref.derivative()(t)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    np.testing.assert_allclose(axis_frames(cps, t).T[0], tangent, atol=1e-9)
+
+
+def test_initial_frame_follows_the_official_convention() -> None:
+    T0 = np.array([[0.6, 0.0, 0.8]])
+    U0, V0 = initial_frame(T0)
+    W = np.array([-T0[0, 1], T0[0, 0], 0.0])
+    V = np.cross(T0[0], W)
+    V /= np.linalg.norm(V)
+    np.testing.assert_allclose(V0[0], V, atol=1e-12)
+    np.testing.assert_allclose(U0[0], np.cross(V, T0[0]), atol=1e-12)
+    # tangent along z: W falls back to (0, 1, 0)
+    U0, V0 = initial_frame(np.array([[0.0, 0.0, 1.0]]))
+    np.testing.assert_allclose(V0[0], [-1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(U0[0], [0.0, 1.0, 0.0], atol=1e-12)
+
+
+def test_numpy_and_torch_give_the_same_frames() -> None:
+    rng = np.random.default_rng(7)
+    cps = rng.uniform(-0.5, 0.5, (4, 5, 3))
+    t = np.linspace(0, 1, 50)
+    ref = axis_frames(cps, t)
+    got = axis_frames(torch.tensor(cps), torch.tensor(t))
+    for r, g in zip(ref, got, strict=True):
+        np.testing.assert_allclose(g.numpy(), r, atol=1e-12)
+
+
+# Random valid primitives over the whole ranges, tight bends included.
+coord = st.floats(-0.5, 0.5, allow_nan=False)
+primitive_strategy = st.builds(
+    lambda cps, a, b, d, s1, s2: SweepPrimitive(np.array(cps).reshape(-1, 3), a=a, b=b, degree=d,
+                                                scaling=(s1, s2)),
+    st.lists(coord, min_size=9, max_size=15).filter(lambda v: len(v) % 3 == 0),
+    st.floats(0.01, 0.5), st.floats(0.01, 0.5), st.floats(0.3, 5.0),
+    st.floats(-0.5, 0.5), st.floats(-0.5, 0.5),
+)
+
+
+def _valid(p: SweepPrimitive) -> bool:
+    try:
+        p.validate()
+    except InvalidPrimitiveError:
+        return False
+    cps = p.control_points
+    # Control points closer than a hair give an axis with a kink-free but degenerate start.
+    return bool(np.min(np.linalg.norm(np.diff(cps, axis=0), axis=1)) > 1e-3)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
+@given(primitive_strategy.filter(_valid))
+def test_random_sweep_meshes_are_closed_outward_solids(p: SweepPrimitive) -> None:
+    mesh = sweep_mesh(p, stations=48, profile_points=32).to_trimesh()
+    assert mesh.is_watertight
+    assert mesh.is_winding_consistent
+    assert mesh.volume > 0.0
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
+@given(primitive_strategy.filter(_valid))
+def test_frames_are_orthonormal_and_do_not_twist(p: SweepPrimitive) -> None:
+    t = np.linspace(0, 1, 400)
+    U, V, T = (x[0] for x in axis_frames(p.control_points[None], t)[1:])
+    eye = np.stack([U, V, T], axis=1) @ np.stack([U, V, T], axis=2)
+    np.testing.assert_allclose(eye, np.broadcast_to(np.eye(3), eye.shape), atol=1e-9)
+    np.testing.assert_allclose(np.cross(U, V), T, atol=1e-9)
+    # Rotation-minimising: moving to the next station, U turns only as much as T does,
+    # so its rate of turning about T is zero: U_{i+1} . V_i ~ 0 (to second order).
+    twist = np.einsum("ij,ij->i", U[1:], V[:-1])
+    turn = np.linalg.norm(T[1:] - T[:-1], axis=1)
+    assert np.all(np.abs(twist) <= 0.5 * turn**2 + 1e-9)
+
+
+def _random_unfolded(rng: np.random.Generator) -> SweepPrimitive:
+    while True:
+        p = SweepPrimitive(rng.uniform(-0.5, 0.5, (rng.integers(3, 6), 3)),
+                           a=rng.uniform(0.01, 0.3), b=rng.uniform(0.01, 0.3),
+                           degree=rng.uniform(0.3, 5.0),
+                           scaling=tuple(rng.uniform(-0.5, 0.5, 2)))
+        if _valid(p) and not folds_onto_itself(p):
+            return p
+
+
+def test_mesh_agrees_with_exact_inside_test() -> None:
+    rng = np.random.default_rng(11)
+    for _ in range(8):
+        p = _random_unfolded(rng)
+        mesh = sweep_mesh(p, stations=256, profile_points=256)
+        lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
+        q = rng.uniform(lo, hi, (30000, 3))
+        by_mesh = igl.fast_winding_number(mesh.vertices, mesh.faces, q) > 0.5
+        exact = inside_primitive(q, p)
+        iou = (by_mesh & exact).sum() / max((by_mesh | exact).sum(), 1)
+        assert iou >= 0.99, (p, iou)
+
+
+def test_exact_inside_on_a_straight_box_sweep() -> None:
+    # d large is close to a rectangle; points well inside / outside the box are exact.
+    p = SweepPrimitive([[0, 0, -0.3], [0, 0, 0], [0, 0, 0.3]], a=0.2, b=0.1, degree=5.0,
+                       scaling=())
+    # axis along z: U = (0, 1, 0), V = (-1, 0, 0) (the official convention)
+    inside = np.array([[0.0, 0.15, 0.0], [0.08, 0.0, 0.29], [0.0, -0.1, -0.29]])
+    outside = np.array([[0.0, 0.21, 0.0], [0.11, 0.0, 0.0], [0.0, 0.0, 0.31],
+                        [0.0, 0.0, -0.31], [0.15, 0.05, 0.0]])
+    assert inside_primitive(inside, p).all()
+    assert not inside_primitive(outside, p).any()
+
+
+def test_inside_union_is_the_or_of_primitives() -> None:
+    rng = np.random.default_rng(3)
+    prims = [_random_unfolded(rng) for _ in range(3)]
+    q = grid_points(24)
+    each = np.stack([inside_primitive(q, p) for p in prims])
+    np.testing.assert_array_equal(inside_union(q, prims), each.any(axis=0))
+
+
+def test_union_mesh_is_watertight_and_has_the_union_volume() -> None:
+    a = straight(direction=(0, 0, 1), a=0.1, b=0.1)
+    b = straight(direction=(1, 0, 0), a=0.1, b=0.1)
+    u = union_mesh(sweep_meshes([a, b], stations=8, profile_points=128)).to_trimesh()
+    assert u.is_watertight and u.is_winding_consistent
+    va, vb = (sweep_mesh(p, 8, 128).to_trimesh().volume for p in (a, b))
+    # two perpendicular cylinders of radius r overlap in a Steinmetz solid, 16 r^3 / 3
+    assert u.volume == pytest.approx(va + vb - 16 * 0.1**3 / 3, rel=0.02)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"a": 0.6}, "profile.a"),
+        ({"b": float("nan")}, "profile.b"),
+        ({"degree": 0.1}, "profile.degree"),
+        ({"scaling": (0.7,)}, "scaling[0]"),
+        ({"scaling": (-0.5, -0.5)}, "scaling"),
+        ({"control_points": [[0, 0, 0], [1, 0, 0]]}, "control_points"),
+        ({"control_points": [[0.1, 0, 0]] * 3}, "control_points"),
+        ({"control_points": [[0, 0, 0], [np.inf, 0, 0], [1, 0, 0]]}, "control_points"),
+    ],
+)
+def test_invalid_parameters_name_the_field(kwargs: dict, field: str) -> None:
+    base = {"control_points": [[0, 0, 0], [0.1, 0, 0], [0.2, 0.1, 0]], "a": 0.1, "b": 0.1,
+            "degree": 2.0, "scaling": (0.0, 0.0)}
+    base.update(kwargs)
+    with pytest.raises(InvalidPrimitiveError) as err:
+        SweepPrimitive(**base).validate(index=4)
+    assert err.value.field == field
+    assert "primitive 4" in str(err.value) and field in str(err.value)
