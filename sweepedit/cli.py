@@ -1,0 +1,373 @@
+"""`sweepedit`: the one command-line entry point.
+
+`sweepedit [FILE]` opens the app; subcommands do the rest (see `sweepedit --help`).
+Every user-facing failure is a SweepeditError: it is printed as one line naming the
+file and the problem, with exit status 2 and no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from sweepedit.errors import SweepeditError
+
+EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130
+# The benchmark set sits beside the checkout (DESIGN.md section 6).
+DEFAULT_SHAPES = Path(__file__).resolve().parents[2] / "shared" / "shapes"
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from sweepedit.io.mesh_export import export_abstraction
+    from sweepedit.io.params import read_abstraction
+
+    abstraction = read_abstraction(args.params)
+    written = export_abstraction(abstraction, args.output, per_primitive=args.per_primitive,
+                                 original_frame=args.original_frame,
+                                 stations=args.stations, profile_points=args.profile_points)
+    for path in written:
+        print(path)
+    return 0
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    from sweepedit.io.params import read_abstraction, write_abstraction
+
+    write_abstraction(read_abstraction(args.input), args.output)
+    print(args.output)
+    return 0
+
+
+def _load_points(path: str) -> "np.ndarray":  # noqa: F821, UP037
+    import numpy as np
+
+    try:
+        points = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise SweepeditError(f"{path}: cannot read a .npy array ({exc})") from None
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise SweepeditError(f"{path}: expected an (N, 3) array of points, got {points.shape}")
+    if not np.all(np.isfinite(points)):
+        raise SweepeditError(f"{path}: the points contain NaN or infinite values")
+    return points.astype(np.float64)
+
+
+def _cmd_inside(args: argparse.Namespace) -> int:
+    import io
+
+    import numpy as np
+
+    from sweepedit.io.params import atomic_write_bytes, read_abstraction
+
+    abstraction = read_abstraction(args.params)
+    points = _load_points(args.points)
+    if args.sweeper == "exact":
+        from sweepedit.geometry.inside import inside_union
+
+        occupancy = inside_union(points, abstraction.primitives)
+    else:
+        from sweepedit.fitting.sweepers import soft_union_occupancy
+
+        occupancy = soft_union_occupancy(abstraction.primitives, points, args.sweeper)
+    buffer = io.BytesIO()
+    np.save(buffer, occupancy)
+    atomic_write_bytes(args.output, buffer.getvalue())
+    inside = float(np.mean(occupancy > 0.5)) if len(occupancy) else 0.0
+    print(f"{len(points)} points, {inside:.1%} inside ({args.sweeper}) -> {args.output}")
+    return 0
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from sweepedit.analysis.metrics import evaluate
+    from sweepedit.io.params import read_abstraction
+    from sweepedit.io.shapes import load_shape
+
+    abstraction = read_abstraction(args.params)
+    shape = load_shape(args.shape)
+    metrics = evaluate(abstraction, shape, n_samples=args.samples, seed=args.seed)
+    print(f"shape      {args.shape}")
+    print(f"params     {args.params}")
+    print(f"primitives {metrics['n_primitives']}")
+    print(f"IoU        {metrics['iou']:.4f}")
+    print(f"CD-L1      {metrics['cd_l1']:.5f}")
+    print(f"CD-L2      {metrics['cd_l2']:.6f}")
+    print(f"F1@0.05    {metrics['f1_0.05']:.4f}")
+    print(f"F1@0.01    {metrics['f1_0.01']:.4f}")
+    if args.json:
+        print(json.dumps(metrics))
+    return 0
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from sweepedit.analysis.skeleton import compute_skeleton
+    from sweepedit.io.shapes import load_shape
+
+    shape = load_shape(args.shape)
+    skeleton = compute_skeleton(shape.occupancy)
+    print(f"shape        {args.shape} ({shape.kind})")
+    print(f"normalised   centre {np.round(shape.normalization.center, 6).tolist()}, "
+          f"scale {shape.normalization.scale:.6g}")
+    if shape.mesh is not None:
+        mesh = shape.mesh
+        print(f"mesh         {len(mesh.vertices)} vertices, {len(mesh.faces)} faces, "
+              f"watertight {mesh.is_watertight}, components {shape.n_components}")
+    occupancy = np.asarray(shape.occupancy)
+    print(f"occupancy    {occupancy.shape[0]}^3, {occupancy.mean():.2%} inside")
+    print(f"skeleton     {len(skeleton.branches)} branches, {len(skeleton.junctions)} junctions, "
+          f"length {skeleton.total_length:.3f}")
+    if args.screenshot:
+        from sweepedit.analysis.render import render_shape
+
+        render_shape(shape, skeleton, args.screenshot)
+        print(f"screenshot   {args.screenshot}")
+    return 0
+
+
+def _run_cancellable(work, cancel) -> object:
+    """Run work() in a thread; Ctrl-C sets `cancel` (the work returns its best so far)."""
+    import threading
+
+    box: dict[str, object] = {}
+
+    def target() -> None:
+        try:
+            box["value"] = work()
+        except BaseException as exc:  # re-raised in the calling thread
+            box["error"] = exc
+
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+    while thread.is_alive():
+        try:
+            thread.join(0.2)
+        except KeyboardInterrupt:
+            print("\nsweepedit: cancelling, keeping the best result so far...", file=sys.stderr)
+            cancel.set()
+    if "error" in box:
+        raise box["error"]  # type: ignore[misc]
+    return box["value"]
+
+
+def _fit_settings(args: argparse.Namespace):
+    from sweepedit.fitting.fit import FitSettings
+
+    return FitSettings(primitives=args.primitives, iterations=args.iterations,
+                       sweeper=args.sweeper, seed=args.seed, restarts=args.restarts,
+                       control_points=args.control_points, scaling_degree=args.scaling_degree)
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    import threading
+
+    from tqdm import tqdm
+
+    from sweepedit.analysis.metrics import evaluate
+    from sweepedit.fitting.fit import fit_abstraction
+    from sweepedit.io.params import write_abstraction
+    from sweepedit.io.shapes import load_shape
+
+    if Path(args.output).suffix.lower() not in (".json", ".txt"):
+        raise SweepeditError(f"{args.output}: parameter files end in .json or .txt")
+    settings = _fit_settings(args)
+    shape = load_shape(args.shape)
+    cancel = threading.Event()
+    bar = tqdm(total=settings.iterations * settings.restarts, unit="it", desc="fitting",
+               dynamic_ncols=True, disable=args.quiet)
+
+    def progress(p) -> None:
+        bar.n = p.iteration
+        bar.set_postfix(rec=f"{p.losses['reconstruction']:.4f}",
+                        prims=len(p.abstraction.primitives), refresh=False)
+        bar.refresh()
+
+    result = _run_cancellable(
+        lambda: fit_abstraction(shape, settings, callback=progress, cancel=cancel), cancel)
+    bar.close()
+    abstraction = result.abstraction
+    metrics = evaluate(abstraction, shape, seed=args.seed)
+    metrics["seconds"] = result.seconds
+    abstraction.fit = {**(abstraction.fit or {}), "metrics": metrics}
+    write_abstraction(abstraction, args.output)
+    state = "cancelled, best so far" if result.cancelled else "done"
+    print(f"{state}: {len(abstraction.primitives)} primitives in {result.seconds:.1f} s; "
+          f"IoU {metrics['iou']:.3f}, CD-L1 {metrics['cd_l1']:.4f}, "
+          f"F1@0.05 {metrics['f1_0.05']:.3f} -> {args.output}")
+    if args.mesh:
+        from sweepedit.io.mesh_export import export_abstraction
+
+        export_abstraction(abstraction, args.mesh)
+        print(f"mesh -> {args.mesh}")
+    if args.screenshot:
+        from sweepedit.analysis.render import render_abstraction
+
+        render_abstraction(abstraction, shape, args.screenshot)
+        print(f"picture -> {args.screenshot}")
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from sweepedit.fitting.bench import format_table, run_bench
+
+    settings = _fit_settings(args)
+    bar = tqdm(unit="shape", desc="bench", dynamic_ncols=True)
+
+    def progress(done: int, total: int, name: str) -> None:
+        bar.total = total
+        bar.n = done
+        bar.set_postfix_str(name)
+        bar.refresh()
+
+    rows = run_bench(args.shapes, args.out, settings, progress=progress)
+    bar.close()
+    print(format_table(rows, settings))
+    print(f"table -> {args.out}, contact sheet -> {Path(args.out).with_suffix('.png')}")
+    return 0
+
+
+def _cmd_train_sweeper(args: argparse.Namespace) -> int:
+    from sweepedit.fitting.train_sweeper import train_sweeper
+
+    train_sweeper(args.output, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
+                  seed=args.seed, resume=args.resume)
+    print(f"weights -> {args.output}")
+    return 0
+
+
+def _cmd_gui(args: argparse.Namespace) -> int:
+    from sweepedit.app.main import run_app, screenshot
+
+    if args.screenshot:
+        return screenshot(args.file, args.screenshot)
+    return run_app(args.file)
+
+
+def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
+    p.add_argument("--primitives", "-k", type=int, default=8, help="primitives to fit (8)")
+    p.add_argument("--iterations", "-n", type=int, default=iterations,
+                   help=f"optimisation steps per restart ({iterations})")
+    p.add_argument("--sweeper", choices=("analytic", "neural"), default="analytic",
+                   help="differentiable sweeper used while fitting (analytic)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--restarts", type=int, default=1,
+                   help="fits from different seeds; the best by IoU is kept (1)")
+    p.add_argument("--control-points", type=int, default=3, help="per axis (3)")
+    p.add_argument("--scaling-degree", type=int, default=2, help="of f(t) (2)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="sweepedit",
+        description="Abstract 3D shapes into editable sweep-surface primitives (SweepNet). "
+                    "Run `sweepedit [FILE]` to open the app.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("export", help="sweep a parameter file into a mesh (OBJ, PLY, STL, GLB)")
+    p.add_argument("params", help="parameter file (.json or official .txt)")
+    p.add_argument("-o", "--output", required=True, help="mesh file to write")
+    p.add_argument("--per-primitive", action="store_true",
+                   help="write one file per primitive (OUTPUT_NN.ext) instead of the union")
+    p.add_argument("--original-frame", action="store_true",
+                   help="map back through the normalisation to the shape's original frame")
+    p.add_argument("--stations", type=int, default=64, help="rings along the axis (64)")
+    p.add_argument("--profile-points", type=int, default=48,
+                   help="points around the profile, a multiple of 4 (48)")
+    p.set_defaults(func=_cmd_export)
+
+    p = sub.add_parser("convert", help="convert parameters between JSON and the official txt")
+    p.add_argument("input", help=".json or .txt")
+    p.add_argument("output", help=".json or .txt (format chosen by extension)")
+    p.set_defaults(func=_cmd_convert)
+
+    p = sub.add_parser("inside", help="occupancy of the union of primitives at points")
+    p.add_argument("params", help="parameter file")
+    p.add_argument("points", help=".npy array (N, 3) of points in the normalised frame")
+    p.add_argument("-o", "--output", required=True, help=".npy to write: one value per point")
+    p.add_argument("--sweeper", choices=("exact", "analytic", "neural"), default="exact",
+                   help="exact: bool per point; analytic/neural: soft occupancy in [0, 1]")
+    p.set_defaults(func=_cmd_inside)
+
+    p = sub.add_parser("eval", help="IoU, CD-L1/L2 and F1 of an abstraction against a shape")
+    p.add_argument("params", help="parameter file")
+    p.add_argument("shape", help="shape file (mesh, voxels or point cloud)")
+    p.add_argument("--json", action="store_true", help="also print one JSON object, last line")
+    p.add_argument("--samples", type=int, default=100_000, help="surface samples per side")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_eval)
+
+    p = sub.add_parser("inspect", help="what a shape file holds, its voxels and skeleton")
+    p.add_argument("shape", help="shape file")
+    p.add_argument("--screenshot", metavar="PNG", help="render the shape and its skeleton")
+    p.set_defaults(func=_cmd_inspect)
+
+    p = sub.add_parser("fit", help="abstract a shape into sweep primitives")
+    p.add_argument("shape", help="shape file (mesh, voxels or point cloud)")
+    p.add_argument("-o", "--output", required=True, help="parameter file to write (.json/.txt)")
+    _add_fit_options(p, iterations=300)
+    p.add_argument("--mesh", metavar="MESH", help="also export the union mesh")
+    p.add_argument("--screenshot", metavar="PNG", help="also render the result over the shape")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_fit)
+
+    p = sub.add_parser("bench", help="fit every shape of a folder and tabulate the metrics")
+    p.add_argument("--shapes", default=str(DEFAULT_SHAPES),
+                   help="folder of shapes (../shared/shapes)")
+    p.add_argument("--out", default="bench-out/bench.md",
+                   help="table to write (Markdown); .json and a contact sheet .png beside it")
+    _add_fit_options(p, iterations=300)
+    p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser("train-sweeper", help="train the neural sweeper on random sweeps")
+    p.add_argument("-o", "--output", default="resources/sweeper_neural.pt")
+    p.add_argument("--steps", type=int, default=20000)
+    p.add_argument("--batch-size", type=int, default=32)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--resume", action="store_true", help="continue from OUTPUT's checkpoint")
+    p.set_defaults(func=_cmd_train_sweeper)
+
+    p = sub.add_parser("gui", help="open the app on a file; --screenshot renders and quits")
+    p.add_argument("file", nargs="?", help="shape or parameter file")
+    p.add_argument("--screenshot", metavar="PNG", help="write a screenshot and quit")
+    p.set_defaults(func=_cmd_gui)
+
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    commands = set(parser._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+    try:
+        if not argv or (argv[0] not in commands and not argv[0].startswith("-")):
+            return _open_app(argv)
+        args = parser.parse_args(argv)
+        return int(args.func(args))
+    except SweepeditError as exc:
+        print(f"sweepedit: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("sweepedit: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _open_app(argv: list[str]) -> int:
+    if len(argv) > 1:
+        raise SweepeditError(f"unknown command '{argv[0]}' (see `sweepedit --help`)")
+    path = argv[0] if argv else None
+    if path is not None and not Path(path).exists():
+        raise SweepeditError(f"{path}: no such file (and not a command; see `sweepedit --help`)")
+    from sweepedit.app.main import run_app
+
+    return run_app(path)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,81 @@
+"""SweepNet's losses (DESIGN.md section 4), each a small function over tensors.
+
+Shapes: B shapes, K primitives, Q query points, M skeleton points, S axis samples.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+BOLTZMANN_ALPHA = 40.0
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    """The paper's weights: reconstruction 12, overlap 6, parsimony 0.3*K/8, axis 5."""
+
+    reconstruction: float = 12.0
+    overlap: float = 6.0
+    parsimony: float | None = None  # None: 0.3 * K / 8
+    axis: float = 5.0
+    # The axis prior guides the start of the fit and then fades out: weight * decay^progress.
+    axis_decay: float = 0.01
+    # Coverage above this many primitives is penalised (the official code uses 1).
+    overlap_threshold: float = 1.0
+
+    def parsimony_weight(self, n_primitives: int) -> float:
+        return 0.3 * n_primitives / 8.0 if self.parsimony is None else self.parsimony
+
+    def axis_weight(self, progress: float) -> float:
+        """Axis weight at progress in [0, 1] through the fit (exponential decay)."""
+        return self.axis * self.axis_decay ** min(max(progress, 0.0), 1.0)
+
+
+def boltzmann_union(occupancy: torch.Tensor, selection: torch.Tensor,
+                    alpha: float = BOLTZMANN_ALPHA) -> torch.Tensor:
+    """Soft union of selected primitives: occupancy (B, K, Q), selection (B, K) -> (B, Q).
+
+    sum_i o_i e^(a o_i) / sum_i e^(a o_i) with o_i = selection_i * occupancy_i, a smooth
+    maximum that passes gradients to every primitive near the top.
+    """
+    o = occupancy * selection[:, :, None]
+    weights = torch.softmax(alpha * o, dim=1)
+    return (weights * o).sum(dim=1)
+
+
+def reconstruction_loss(union: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean squared error between the union (B, Q) and the target occupancy (B, Q)."""
+    return torch.mean((union - target) ** 2)
+
+
+def overlap_loss(occupancy: torch.Tensor, selection: torch.Tensor,
+                 threshold: float = 1.0) -> torch.Tensor:
+    """Mean coverage beyond `threshold` primitives: occupancy (B, K, Q), selection (B, K)."""
+    coverage = (occupancy * selection[:, :, None]).sum(dim=1)
+    return torch.mean(torch.relu(coverage - threshold))
+
+
+def parsimony_loss(selection: torch.Tensor) -> torch.Tensor:
+    """sqrt of the (soft) number of selected primitives, averaged over the batch: (B, K)."""
+    return torch.mean(torch.sqrt(selection.sum(dim=1) + 1e-6))
+
+
+def axis_chamfer_loss(skeleton: torch.Tensor, axes: torch.Tensor,
+                      selection: torch.Tensor) -> torch.Tensor:
+    """Chamfer distance between skeleton points and the selected primitives' axes.
+
+    skeleton (M, 3); axes (K, S, 3) points sampled along each axis; selection (K,).
+    Skeleton -> axes asks every part of the medial axis to be covered by some selected
+    axis; axes -> skeleton keeps each selected axis on the medial axis (weighted by
+    its selection so that dropped primitives are free).
+    """
+    K, S, _ = axes.shape
+    d2 = torch.cdist(skeleton, axes.reshape(K * S, 3)) ** 2  # (M, K*S)
+    # A dropped primitive should not cover the skeleton: push its points away.
+    penalty = (1.0 - selection).repeat_interleave(S)[None, :]
+    to_axes = torch.min(d2 + penalty, dim=1).values.mean()
+    per_axis = torch.min(d2, dim=0).values.reshape(K, S).mean(dim=1)  # (K,)
+    to_skeleton = (per_axis * selection).sum() / (selection.sum() + 1e-6)
+    return to_axes + to_skeleton

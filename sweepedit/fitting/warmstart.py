@@ -1,0 +1,128 @@
+"""Warm start from the medial axis: one primitive per skeleton branch.
+
+Control points come from a least-squares fit of the axis B-spline to the branch; the
+profile from the local radius (distance transform); the scaling from how that radius
+changes along the branch. With fewer branches than primitives, the longest pieces are
+split ("the rest shared out by branch length"); with more, the longest branches win.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from sweepedit.geometry.model import (
+    A_RANGE,
+    SCALING_RANGE,
+    SweepPrimitive,
+    palette_color,
+    scaling_polynomial_min,
+)
+from sweepedit.geometry.sweep import axis_points
+
+# Skeleton branches stop about one radius short of a tip; extend them by this share
+# of the radius so the warm-started primitive reaches the shape's end.
+TIP_EXTENSION = 0.8
+MIN_PIECE_POINTS = 4
+
+
+def _arc_length(points: np.ndarray) -> np.ndarray:
+    """Cumulative arc length (M,) of a polyline (M, 3), starting at 0."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+
+
+def bspline_basis(n_control_points: int, t: np.ndarray) -> np.ndarray:
+    """Basis matrix (M, n) of the clamped quadratic B-spline at t (M,).
+
+    The axis is linear in its control points, so evaluating it on unit control points
+    gives the basis, with no second copy of the spline's definition.
+    """
+    eye = np.zeros((n_control_points, n_control_points, 3))
+    eye[np.arange(n_control_points), np.arange(n_control_points), 0] = 1.0
+    return axis_points(eye, t)[:, :, 0].T
+
+
+def fit_axis(points: np.ndarray, n_control_points: int) -> np.ndarray:
+    """Least-squares control points (n, 3) of a B-spline through a polyline (M, 3),
+    parameterised by arc length, with its ends pinned to the polyline's ends."""
+    s = _arc_length(points)
+    t = s / s[-1] if s[-1] > 0 else np.linspace(0.0, 1.0, len(points))
+    basis = bspline_basis(n_control_points, t)  # (M, n)
+    ends = np.outer(basis[:, 0], points[0]) + np.outer(basis[:, -1], points[-1])
+    inner, *_ = np.linalg.lstsq(basis[:, 1:-1], points - ends, rcond=None)
+    return np.vstack([points[0], inner, points[-1]])
+
+
+def _radius_profile(radii: np.ndarray, t: np.ndarray, n_scaling: int) -> tuple[float, tuple]:
+    """Half-axis and scaling coefficients (s1..sk) whose f(t) follows the radii."""
+    degree = min(n_scaling, 2, len(t) - 1)
+    coeffs = np.polynomial.polynomial.polyfit(t, radii, degree) if degree > 0 else [radii.mean()]
+    base = float(np.clip(coeffs[0], *A_RANGE))
+    scaling = np.zeros(n_scaling)
+    scaling[:degree] = np.clip(np.asarray(coeffs[1:degree + 1]) / base, *SCALING_RANGE)
+    # Halve the coefficients until f stays comfortably positive on [0, 1].
+    while scaling_polynomial_min(scaling) < 0.2:
+        scaling *= 0.5
+    return base, tuple(float(v) for v in scaling)
+
+
+def _extend_tips(points: np.ndarray, radii: np.ndarray, tips: tuple[bool, bool]) -> np.ndarray:
+    """Lengthen a polyline (M, 3) past the ends that are tips by a share of the radius."""
+    out = points.copy()
+    if len(points) < 2:
+        return out
+    if tips[0]:
+        d = points[0] - points[min(2, len(points) - 1)]
+        out[0] = points[0] + TIP_EXTENSION * radii[0] * d / max(np.linalg.norm(d), 1e-9)
+    if tips[1]:
+        d = points[-1] - points[max(-3, -len(points))]
+        out[-1] = points[-1] + TIP_EXTENSION * radii[-1] * d / max(np.linalg.norm(d), 1e-9)
+    return out
+
+
+def _pieces(branches: Sequence, k: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(points (M, 3), radii (M,)) pieces: the k longest branches, splitting the longest
+    ones while there are fewer than k. Closed loops are cut in three first, since one
+    quadratic axis cannot close on itself."""
+    pieces: list[tuple[np.ndarray, np.ndarray]] = []
+    for br in branches:
+        pts, rad = np.asarray(br.points, float), np.asarray(br.radii, float)
+        if len(pts) < 2:
+            continue
+        tips = (bool(getattr(br, "start_is_tip", False)), bool(getattr(br, "end_is_tip", False)))
+        pts = _extend_tips(pts, rad, tips)
+        if getattr(br, "is_loop", False) and len(pts) >= 3 * MIN_PIECE_POINTS:
+            pieces += [(p, r) for p, r in zip(np.array_split(pts, 3), np.array_split(rad, 3),
+                                              strict=True)]
+        else:
+            pieces.append((pts, rad))
+    pieces.sort(key=lambda pr: -_arc_length(pr[0])[-1])
+    pieces = pieces[:k]
+    while 0 < len(pieces) < k:
+        longest = max(range(len(pieces)), key=lambda i: _arc_length(pieces[i][0])[-1])
+        pts, rad = pieces[longest]
+        if len(pts) < 2 * MIN_PIECE_POINTS:
+            break
+        mid = len(pts) // 2
+        # Overlap by one point so the halves meet.
+        pieces[longest:longest + 1] = [(pts[:mid + 1], rad[:mid + 1]), (pts[mid:], rad[mid:])]
+    return pieces
+
+
+def warm_start_primitives(branches: Sequence, k: int, n_control_points: int = 3,
+                          n_scaling: int = 2) -> list[SweepPrimitive]:
+    """Up to k valid primitives from skeleton branches (objects with .points (M, 3) and
+    .radii (M,); optional .start_is_tip, .end_is_tip, .is_loop)."""
+    out: list[SweepPrimitive] = []
+    for pts, rad in _pieces(branches, k):
+        cps = fit_axis(pts, n_control_points)
+        if np.linalg.norm(cps[-1] - cps[0]) < 1e-4:  # a piece that collapsed to a point
+            continue
+        s = _arc_length(pts)
+        t = s / s[-1] if s[-1] > 0 else np.linspace(0, 1, len(pts))
+        a, scaling = _radius_profile(rad, t, n_scaling)
+        prim = SweepPrimitive(np.clip(cps, -0.5, 0.5), a=a, b=a, degree=2.0, scaling=scaling,
+                              name=f"primitive {len(out) + 1}", color=palette_color(len(out)))
+        out.append(prim)
+    return out

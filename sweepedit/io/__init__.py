@@ -1,0 +1,1 @@
+"""Input and output: shape loading and normalisation, voxelisation, samples, parameter files."""

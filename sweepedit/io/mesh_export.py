@@ -1,0 +1,70 @@
+"""Writing swept meshes to disk (OBJ, PLY, STL, GLB), atomically."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from sweepedit.errors import SweepeditError
+from sweepedit.geometry.mesher import (
+    DISPLAY_PROFILE_POINTS,
+    DISPLAY_STATIONS,
+    TriangleMesh,
+    sweep_meshes,
+    union_mesh,
+)
+from sweepedit.geometry.model import Abstraction, Normalization
+from sweepedit.io.params import atomic_write_bytes
+
+MESH_FORMATS = (".obj", ".ply", ".stl", ".glb")
+
+
+def mesh_format(path: str | Path) -> str:
+    """The export format of a path by its extension, or a clear error."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in MESH_FORMATS:
+        raise SweepeditError(f"{path}: cannot write meshes as '{suffix or 'no extension'}'; "
+                             f"use one of {', '.join(MESH_FORMATS)}")
+    return suffix[1:]
+
+
+def write_mesh(mesh: TriangleMesh, path: str | Path, color: str | None = None) -> None:
+    """Write one mesh atomically in the format its extension names."""
+    import trimesh
+
+    fmt = mesh_format(path)
+    tm = trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_normals=mesh.normals, process=False)
+    if color:
+        rgb = [int(color[i:i + 2], 16) for i in (1, 3, 5)]
+        tm.visual.face_colors = np.tile([*rgb, 255], (len(mesh.faces), 1))
+    atomic_write_bytes(path, tm.export(file_type=fmt))
+
+
+def _to_original(mesh: TriangleMesh, normalization: Normalization) -> TriangleMesh:
+    return TriangleMesh(normalization.to_original(mesh.vertices), mesh.faces, mesh.normals)
+
+
+def export_abstraction(abstraction: Abstraction, path: str | Path, *, per_primitive: bool = False,
+                       original_frame: bool = False, stations: int = DISPLAY_STATIONS,
+                       profile_points: int = DISPLAY_PROFILE_POINTS) -> list[Path]:
+    """Write the union of the primitives (or one file per primitive) and return the paths.
+
+    Per-primitive files are named STEM_NN.EXT beside `path`, one per primitive in order.
+    """
+    path = Path(path)
+    mesh_format(path)
+    if not abstraction.primitives:
+        raise SweepeditError(f"{path}: the abstraction has no primitives to export")
+    meshes = sweep_meshes(abstraction.primitives, stations, profile_points)
+    if original_frame:
+        meshes = [_to_original(m, abstraction.normalization) for m in meshes]
+    if not per_primitive:
+        write_mesh(union_mesh(meshes), path)
+        return [path]
+    written = []
+    for i, (mesh, prim) in enumerate(zip(meshes, abstraction.primitives, strict=True)):
+        out = path.with_name(f"{path.stem}_{i:02d}{path.suffix}")
+        write_mesh(mesh, out, color=prim.color)
+        written.append(out)
+    return written

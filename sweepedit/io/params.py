@@ -1,0 +1,590 @@
+"""Parameter files: sweepedit's JSON abstraction file and the official SweepNet text file.
+
+JSON (DESIGN.md section 2)::
+
+    {"format": "sweepedit.abstraction", "version": 1,
+     "normalization": {"center": [x, y, z], "scale": s},
+     "source": {...} | null,
+     "primitives": [{"control_points": [[x, y, z], ...], "profile": {"a", "b", "degree"},
+                     "scaling": [s1, ..., sk], "name", "color", "visible", "locked"}, ...],
+     "fit": {...} | null}
+
+Unknown keys survive a load/save cycle: top-level ones in `Abstraction.extras`, per-primitive
+ones in `SweepPrimitive.extras`, and unknown keys *inside* "profile" / "normalization" in
+`extras["profile"]` / `Abstraction.extras["normalization"]` (those names are known keys, so
+they can never collide with a real unknown key of the same level).
+
+Official SweepNet text: one row per primitive, c1..cn (3n numbers), a, b, d, s_quad, s_lin;
+3n + 5 columns (14 for the usual n = 3). It holds geometry only: names, colours, flags,
+normalisation (the identity), source and fit record are not stored.
+
+Every file is written atomically (`atomic_write_text`, `atomic_write_bytes`, `atomic_open`):
+a crash or error mid-write leaves the previous file untouched and no temporary file behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import io
+import json
+import math
+import os
+import re
+import secrets
+import stat
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import IO, Any, Literal
+
+import numpy as np
+
+from sweepedit.errors import FileFormatError, InvalidPrimitiveError
+from sweepedit.geometry.model import (
+    MIN_CONTROL_POINTS,
+    Abstraction,
+    Normalization,
+    SweepPrimitive,
+    palette_color,
+)
+
+__all__ = [
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "abstraction_from_json",
+    "abstraction_to_json",
+    "atomic_open",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "read_abstraction",
+    "read_official_txt",
+    "write_abstraction",
+    "write_official_txt",
+]
+
+PathLike = str | os.PathLike[str]
+
+FORMAT_NAME = "sweepedit.abstraction"
+FORMAT_VERSION = 1
+
+TOP_KEYS = ("format", "version", "normalization", "source", "primitives", "fit")
+PRIMITIVE_KEYS = ("control_points", "profile", "scaling", "name", "color", "visible", "locked")
+PROFILE_KEYS = ("a", "b", "degree")
+NORMALIZATION_KEYS = ("center", "scale")
+
+_COLOR_RE = re.compile(r"#[0-9a-fA-F]{6}")
+# The official format stores the two scaling coefficients after the profile.
+_OFFICIAL_SCALING_COLUMNS = 2
+_OFFICIAL_FMT = "%.18e"  # numpy's savetxt default; 19 significant digits round-trip a double
+
+
+def default_name(index: int) -> str:
+    """Name given to the index-th primitive when a file has none (same index as in errors)."""
+    return f"primitive {index}"
+
+
+# --------------------------------------------------------------------------- atomic writes
+
+
+@contextlib.contextmanager
+def atomic_open(path: PathLike, mode: Literal["wb", "w"] = "wb", *, encoding: str = "utf-8",
+                newline: str | None = "") -> Iterator[IO[Any]]:
+    """Open a file for writing that only replaces `path` when the block ends without error.
+
+    Writes go to a temporary file in the same directory (so the final rename stays on one
+    file system); on success it is flushed, fsynced and moved over `path` with os.replace
+    (atomic on POSIX and Windows). On any exception the temporary file is removed, `path`
+    is left as it was and the exception propagates. mode is "wb" (bytes) or "w" (text;
+    `newline=""` by default so "\\n" is written as is on every platform).
+
+    Example: ``with atomic_open("mesh.ply") as f: mesh.export(f, file_type="ply")``.
+    """
+    if mode not in ("wb", "w"):
+        raise ValueError(f"atomic_open mode must be 'wb' or 'w', got {mode!r}")
+    path = Path(path)
+    directory = path.parent
+    try:
+        # Keep the permissions of a file we replace; a new file gets the umask's default.
+        keep_mode: int | None = stat.S_IMODE(os.stat(path).st_mode)
+    except FileNotFoundError:
+        keep_mode = None
+    tmp, fd = _create_temp(directory, path.name)
+    try:
+        kwargs: dict[str, Any] = {} if mode == "wb" else {"encoding": encoding,
+                                                          "newline": newline}
+        with os.fdopen(fd, mode, **kwargs) as handle:
+            yield handle
+            handle.flush()
+            os.fsync(handle.fileno())
+        if keep_mode is not None:
+            os.chmod(tmp, keep_mode)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    _fsync_directory(directory)
+
+
+def _create_temp(directory: Path, name: str) -> tuple[Path, int]:
+    # Not tempfile.mkstemp: it creates mode 0600, and the saved file would keep it.
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
+    for _ in range(100):
+        tmp = directory / f".{name}.{secrets.token_hex(6)}.tmp"
+        try:
+            return tmp, os.open(tmp, flags, 0o666)
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"could not create a temporary file next to {directory / name}")
+
+
+def _fsync_directory(directory: Path) -> None:
+    # Makes the rename itself durable; not possible on every platform (Windows), so best effort.
+    with contextlib.suppress(OSError):
+        fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def atomic_write_bytes(path: PathLike, data: bytes) -> None:
+    """Replace `path` with `data` atomically: the old content or the new, never a mixture."""
+    with atomic_open(path, "wb") as handle:
+        handle.write(data)
+
+
+def atomic_write_text(path: PathLike, text: str, encoding: str = "utf-8") -> None:
+    """Replace `path` with `text` atomically. The text is encoded before the file is touched."""
+    atomic_write_bytes(path, text.encode(encoding))
+
+
+# --------------------------------------------------------------------------- dispatch
+
+
+def read_abstraction(path: PathLike) -> Abstraction:
+    """Read a .json (sweepedit) or .txt (official SweepNet) parameter file, validated.
+
+    Raises FileFormatError for anything wrong with the file's content (naming the file and,
+    where it applies, the primitive, the field and the line); OSError if it cannot be read.
+    """
+    kind = _kind(path)
+    if kind == "json":
+        return _read_json(path)
+    return read_official_txt(path, n_control_points=None)
+
+
+def write_abstraction(abstraction: Abstraction, path: PathLike) -> None:
+    """Write `abstraction` to a .json or .txt file (by extension), atomically.
+
+    Primitives are validated first (InvalidPrimitiveError), so no file is ever written that
+    could not be read back. FileFormatError if the extension is unknown or the official
+    format cannot hold the abstraction.
+    """
+    kind = _kind(path)
+    if kind == "txt":
+        write_official_txt(abstraction, path)
+        return
+    abstraction.validate()
+    atomic_write_text(path, dumps_abstraction(abstraction))
+
+
+def _kind(path: PathLike) -> Literal["json", "txt"]:
+    suffix = Path(path).suffix.lower()
+    if suffix == ".json":
+        return "json"
+    if suffix == ".txt":
+        return "txt"
+    raise FileFormatError(path, f"unknown parameter file extension {suffix or '(none)'!r}: "
+                          "use .json (sweepedit) or .txt (official SweepNet)")
+
+
+# --------------------------------------------------------------------------- JSON
+
+
+def dumps_abstraction(abstraction: Abstraction) -> str:
+    """The JSON text of `abstraction` (UTF-8 ready, ends with a newline); no validation."""
+    text = json.dumps(abstraction_to_json(abstraction), indent=2, ensure_ascii=False,
+                      default=_json_default)
+    return _compact_number_lists(text) + "\n"
+
+
+def _json_default(value: Any) -> Any:
+    # Fit records and extras often carry numpy scalars/arrays and paths; store plain JSON.
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    raise TypeError(f"cannot store a {type(value).__name__} in a parameter file: {value!r}")
+
+
+# An indented list of plain numbers; a raw newline never occurs inside a JSON string, so this
+# only ever matches structure. "[\n  1.0,\n  2.0\n]" -> "[1.0, 2.0]" (a point per line).
+_NUMBER_LIST_RE = re.compile(r"\[\n[ ]*(-?[0-9][0-9.eE+-]*(?:,\n[ ]*-?[0-9][0-9.eE+-]*)*)\n[ ]*\]")
+
+
+def _compact_number_lists(text: str) -> str:
+    return _NUMBER_LIST_RE.sub(
+        lambda m: "[" + ", ".join(part.strip() for part in m.group(1).split(",")) + "]", text)
+
+
+def abstraction_to_json(abstraction: Abstraction) -> dict[str, Any]:
+    """The JSON document of `abstraction` as plain Python data (a fresh, deep copy).
+
+    Key order: format, version, normalization, source, primitives, fit, then unknown keys.
+    Floats are stored unrounded (Python writes the shortest repr that reads back exactly).
+    """
+    extras = dict(abstraction.extras)
+    norm_extras = _nested_extras(extras.pop("normalization", None), "normalization")
+    norm = abstraction.normalization
+    normalization: dict[str, Any] = {"center": [float(v) for v in norm.center],
+                                     "scale": float(norm.scale)}
+    normalization.update(_unknown_only(norm_extras, NORMALIZATION_KEYS))
+    doc: dict[str, Any] = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "normalization": normalization,
+        "source": copy.deepcopy(abstraction.source),
+        "primitives": [_primitive_to_json(p) for p in abstraction.primitives],
+        "fit": copy.deepcopy(abstraction.fit),
+    }
+    doc.update(_unknown_only(extras, TOP_KEYS))
+    return doc
+
+
+def _primitive_to_json(p: SweepPrimitive) -> dict[str, Any]:
+    extras = dict(p.extras)
+    profile_extras = _nested_extras(extras.pop("profile", None), "profile")
+    profile: dict[str, Any] = {"a": float(p.a), "b": float(p.b), "degree": float(p.degree)}
+    profile.update(_unknown_only(profile_extras, PROFILE_KEYS))
+    out: dict[str, Any] = {
+        "control_points": np.asarray(p.control_points, dtype=np.float64).tolist(),
+        "profile": profile,
+        "scaling": [float(s) for s in p.scaling],
+        "name": p.name,
+        "color": p.color,
+        "visible": bool(p.visible),
+        "locked": bool(p.locked),
+    }
+    out.update(_unknown_only(extras, PRIMITIVE_KEYS))
+    return out
+
+
+def _nested_extras(value: Any, key: str) -> dict[str, Any]:
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise TypeError(f"extras[{key!r}] holds the unknown keys inside {key!r} and must be a "
+                        f"dict, got {type(value).__name__}")
+    return dict(value)
+
+
+def _unknown_only(extras: Mapping[str, Any], known: tuple[str, ...]) -> dict[str, Any]:
+    # An extra that shadows a known key must never override the model's own value.
+    return {k: copy.deepcopy(v) for k, v in extras.items() if k not in known}
+
+
+def _read_json(path: PathLike) -> Abstraction:
+    raw = Path(path).read_bytes()
+    try:
+        text = raw.decode("utf-8-sig")  # tolerate a BOM some editors add
+    except UnicodeDecodeError as e:
+        raise FileFormatError(path, f"not UTF-8 text (byte {e.start}): not a JSON "
+                              "parameter file") from e
+    if not text.strip():
+        raise FileFormatError(path, "the file is empty")
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as e:
+        if not text[e.pos:].strip():
+            raise FileFormatError(path, f"the JSON ends unexpectedly at line {e.lineno}, "
+                                  f"column {e.colno} (truncated file?): {e.msg}") from e
+        raise FileFormatError(path, f"malformed JSON at line {e.lineno}, column {e.colno}: "
+                              f"{e.msg}") from e
+    except RecursionError as e:
+        raise FileFormatError(path, "malformed JSON: nested too deeply") from e
+    return abstraction_from_json(data, path)
+
+
+def abstraction_from_json(data: dict[str, Any], path_for_errors: PathLike = "<json>"
+                          ) -> Abstraction:
+    """Build and validate an Abstraction from a parsed JSON document.
+
+    path_for_errors: the file name that FileFormatError messages report.
+    """
+    return _JsonReader(path_for_errors).abstraction(data)
+
+
+class _JsonReader:
+    """Checks a parsed document piece by piece; every error names file, primitive and field."""
+
+    def __init__(self, path: PathLike) -> None:
+        self.path = path
+
+    def error(self, detail: str, primitive: int | None = None,
+              field: str | None = None) -> FileFormatError:
+        # InvalidPrimitiveError composes "primitive i, field 'f': detail" the same way for all.
+        return InvalidPrimitiveError(detail, primitive=primitive, field=field).in_file(self.path)
+
+    def abstraction(self, data: Any) -> Abstraction:
+        if not isinstance(data, dict):
+            raise self.error(f"the top level must be a JSON object, got {_describe(data)}")
+        self._check_header(data)
+        normalization, norm_extras = self._normalization(data.get("normalization"))
+        source = self._optional_object(data, "source")
+        fit = self._optional_object(data, "fit")
+        if "primitives" not in data:
+            raise self.error("missing key 'primitives'", field="primitives")
+        items = data["primitives"]
+        if not isinstance(items, list):
+            raise self.error(f"expected a list, got {_describe(items)}", field="primitives")
+        primitives = [self.primitive(item, i) for i, item in enumerate(items)]
+        extras = {k: v for k, v in data.items() if k not in TOP_KEYS}
+        if norm_extras:
+            extras["normalization"] = norm_extras
+        return Abstraction(primitives=primitives, normalization=normalization, source=source,
+                           fit=fit, extras=extras)
+
+    def _check_header(self, data: dict[str, Any]) -> None:
+        fmt = data.get("format")
+        if fmt != FORMAT_NAME:
+            found = "no 'format' key" if "format" not in data else f"'format' is {fmt!r}"
+            raise self.error(f"not a sweepedit abstraction file: {found}, expected "
+                             f"{FORMAT_NAME!r}", field="format")
+        if "version" not in data:
+            raise self.error("missing key 'version'", field="version")
+        version = data["version"]
+        if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+            raise self.error(f"expected a positive integer version, got {_describe(version)}",
+                             field="version")
+        if version > FORMAT_VERSION:
+            raise self.error(f"the file has format version {version}, written by a newer "
+                             f"sweepedit; this sweepedit reads version {FORMAT_VERSION} only "
+                             "(update sweepedit to open it)", field="version")
+
+    def _optional_object(self, data: dict[str, Any], key: str) -> dict[str, Any] | None:
+        value = data.get(key)
+        if value is not None and not isinstance(value, dict):
+            raise self.error(f"expected an object or null, got {_describe(value)}", field=key)
+        return value
+
+    def _normalization(self, value: Any) -> tuple[Normalization, dict[str, Any]]:
+        if value is None:
+            return Normalization(), {}
+        if not isinstance(value, dict):
+            raise self.error(f"expected an object, got {_describe(value)}",
+                             field="normalization")
+        center = self.vector(value.get("center", [0.0, 0.0, 0.0]), 3, None,
+                             "normalization.center")
+        scale = self.number(value.get("scale", 1.0), None, "normalization.scale")
+        try:
+            normalization = Normalization(center=center, scale=scale)
+        except InvalidPrimitiveError as e:
+            raise e.in_file(self.path) from e
+        return normalization, {k: v for k, v in value.items() if k not in NORMALIZATION_KEYS}
+
+    def primitive(self, item: Any, index: int) -> SweepPrimitive:
+        if not isinstance(item, dict):
+            raise self.error(f"expected an object, got {_describe(item)}", index)
+        points = self.required(item, "control_points", index, "control_points")
+        if not isinstance(points, list):
+            raise self.error(f"expected a list of [x, y, z] points, got {_describe(points)}",
+                             index, "control_points")
+        control_points = [self.vector(p, 3, index, f"control_points[{j}]")
+                          for j, p in enumerate(points)]
+        profile = self.required(item, "profile", index, "profile")
+        if not isinstance(profile, dict):
+            raise self.error(f"expected an object {{a, b, degree}}, got {_describe(profile)}",
+                             index, "profile")
+        a, b, degree = (self.number(self.required(profile, k, index, f"profile.{k}"), index,
+                                    f"profile.{k}") for k in PROFILE_KEYS)
+        scaling = item.get("scaling", [])  # [] is f(t) = 1
+        if not isinstance(scaling, list):
+            raise self.error(f"expected a list [s1, ..., sk], got {_describe(scaling)}",
+                             index, "scaling")
+        coefficients = [self.number(s, index, f"scaling[{i}]") for i, s in enumerate(scaling)]
+        name = item.get("name", default_name(index))
+        if not isinstance(name, str):
+            raise self.error(f"expected a string, got {_describe(name)}", index, "name")
+        color = item.get("color", palette_color(index))
+        if not isinstance(color, str) or not _COLOR_RE.fullmatch(color):
+            raise self.error(f"expected a colour '#rrggbb', got {_describe(color)}",
+                             index, "color")
+        visible = self.boolean(item.get("visible", True), index, "visible")
+        locked = self.boolean(item.get("locked", False), index, "locked")
+        extras = {k: v for k, v in item.items() if k not in PRIMITIVE_KEYS}
+        profile_extras = {k: v for k, v in profile.items() if k not in PROFILE_KEYS}
+        if profile_extras:
+            extras["profile"] = profile_extras
+        primitive = SweepPrimitive(
+            control_points=np.array(control_points, dtype=np.float64).reshape(-1, 3),
+            a=a, b=b, degree=degree, scaling=tuple(coefficients), name=name, color=color,
+            visible=visible, locked=locked, extras=extras)
+        try:
+            primitive.validate(index)
+        except InvalidPrimitiveError as e:
+            raise e.in_file(self.path) from e
+        return primitive
+
+    def required(self, obj: dict[str, Any], key: str, index: int | None, field: str) -> Any:
+        if key not in obj:
+            raise self.error(f"missing key {key!r}", index, field)
+        return obj[key]
+
+    def number(self, value: Any, index: int | None, field: str) -> float:
+        # bool is an int in Python but never a number in a parameter file.
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.error(f"expected a number, got {_describe(value)}", index, field)
+        try:
+            return float(value)
+        except OverflowError as e:
+            raise self.error("number too large", index, field) from e
+
+    def vector(self, value: Any, size: int, index: int | None, field: str) -> list[float]:
+        if not isinstance(value, list) or len(value) != size:
+            raise self.error(f"expected a list of {size} numbers, got {_describe(value)}",
+                             index, field)
+        return [self.number(v, index, f"{field}[{i}]") for i, v in enumerate(value)]
+
+    def boolean(self, value: Any, index: int, field: str) -> bool:
+        if not isinstance(value, bool):
+            raise self.error(f"expected true or false, got {_describe(value)}", index, field)
+        return value
+
+
+def _describe(value: Any) -> str:
+    """'a string "abc"', 'null', 'a list of 2 items' ... for error messages."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return f"the boolean {'true' if value else 'false'}"
+    if isinstance(value, str):
+        shown = value if len(value) <= 40 else value[:37] + "..."
+        return f"a string {json.dumps(shown, ensure_ascii=False)}"
+    if isinstance(value, int | float):
+        return f"the number {value!r}"
+    if isinstance(value, list):
+        return f"a list of {len(value)} item{'s' * (len(value) != 1)}"
+    if isinstance(value, dict):
+        return "an object"
+    return type(value).__name__
+
+
+# --------------------------------------------------------------------------- official text
+
+
+def official_columns(n_control_points: int) -> int:
+    """Numbers per row of the official format: 3n control-point coordinates, a, b, d, 2 scaling."""
+    return 3 * n_control_points + 3 + _OFFICIAL_SCALING_COLUMNS
+
+
+def read_official_txt(path: PathLike, n_control_points: int | None = None) -> Abstraction:
+    """Read an official SweepNet primitive_parameters.txt file, validated.
+
+    Row layout: c1..cn (3n), a, b, d, s_quad, s_lin; note s_quad (the t^2 coefficient) comes
+    first, so `scaling = (s_lin, s_quad)`. n_control_points=None infers n from the column
+    count of the first row (3n + 5: 14 columns -> 3); an int requires exactly 3n + 5.
+    Blank lines and '#' comments are skipped. Normalisation is the identity; names and
+    colours are the defaults ("primitive i", palette_color(i)).
+    """
+    if n_control_points is not None and n_control_points < MIN_CONTROL_POINTS:
+        raise ValueError(f"n_control_points must be >= {MIN_CONTROL_POINTS}, "
+                         f"got {n_control_points}")
+    try:
+        text = Path(path).read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise FileFormatError(path, f"not a text file (byte {e.start} is not UTF-8)") from e
+
+    rows: list[tuple[int, np.ndarray]] = []
+    expected = None if n_control_points is None else official_columns(n_control_points)
+    first_line = 0
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        content = line.split("#", 1)[0].strip()
+        if not content:
+            continue
+        values = _parse_row(path, lineno, content.split())
+        if expected is None:
+            if values.size < official_columns(MIN_CONTROL_POINTS) or (values.size - 5) % 3:
+                raise FileFormatError(path, f"line {lineno}: {values.size} numbers; a row "
+                                      "holds 3n + 5 numbers for n >= 3 control points (14 "
+                                      "for n = 3)")
+            expected, first_line = values.size, lineno
+        elif values.size != expected:
+            why = (f"line {first_line} has {expected}" if n_control_points is None else
+                   f"{n_control_points} control points need {expected}")
+            raise FileFormatError(path, f"line {lineno}: {values.size} numbers, expected "
+                                  f"{expected} ({why})")
+        rows.append((lineno, values))
+    if not rows:
+        raise FileFormatError(path, "the file is empty: no primitive rows")
+
+    assert expected is not None
+    n = (expected - 5) // 3
+    primitives = []
+    for index, (lineno, row) in enumerate(rows):
+        primitive = SweepPrimitive(
+            control_points=row[:3 * n].reshape(n, 3),
+            a=row[3 * n], b=row[3 * n + 1], degree=row[3 * n + 2],
+            scaling=(row[3 * n + 4], row[3 * n + 3]),  # (s_lin, s_quad) -> (s1, s2)
+            name=default_name(index), color=palette_color(index))
+        try:
+            primitive.validate(index)
+        except InvalidPrimitiveError as e:
+            raise FileFormatError(path, f"line {lineno}, {e}", primitive=e.primitive,
+                                  field=e.field) from e
+        primitives.append(primitive)
+    return Abstraction(primitives=primitives)
+
+
+def _parse_row(path: PathLike, lineno: int, tokens: list[str]) -> np.ndarray:
+    values = np.empty(len(tokens))
+    for column, token in enumerate(tokens, start=1):
+        try:
+            value = float(token)
+        except ValueError:
+            raise FileFormatError(path, f"line {lineno}, column {column}: {token!r} is not a "
+                                  "number") from None
+        if not math.isfinite(value):
+            raise FileFormatError(path, f"line {lineno}, column {column}: {token!r} is not a "
+                                  "finite number")
+        values[column - 1] = value
+    return values
+
+
+def write_official_txt(abstraction: Abstraction, path: PathLike) -> None:
+    """Write the official SweepNet text format (full precision, '%.18e'), atomically.
+
+    Only geometry is stored. FileFormatError (before anything is written) when the format
+    cannot hold the abstraction: no primitives, control-point counts that differ between
+    primitives, or a scaling polynomial of degree > 2 (trailing zero coefficients are fine;
+    fewer than 2 coefficients are padded with zeros). InvalidPrimitiveError if a primitive
+    is invalid.
+    """
+    abstraction.validate()
+    primitives = abstraction.primitives
+    if not primitives:
+        raise FileFormatError(path, "the official format cannot hold an abstraction without "
+                              "primitives (an empty file is not readable)")
+    n = primitives[0].n_control_points
+    rows = []
+    for index, p in enumerate(primitives):
+        if p.n_control_points != n:
+            raise FileFormatError(
+                path, f"the official format needs the same number of control points in every "
+                f"row: primitive 0 has {n}, primitive {index} has {p.n_control_points}",
+                primitive=index, field="control_points")
+        scaling = list(p.scaling)
+        while len(scaling) > _OFFICIAL_SCALING_COLUMNS and scaling[-1] == 0.0:
+            scaling.pop()  # a zero top coefficient loses nothing
+        if len(scaling) > _OFFICIAL_SCALING_COLUMNS:
+            raise FileFormatError(
+                path, f"primitive {index}, field 'scaling': the official format holds a scaling "
+                f"polynomial of degree <= 2 (s_lin, s_quad), this one has degree {len(scaling)}; "
+                "save as .json instead", primitive=index, field="scaling")
+        s1, s2 = [*scaling, 0.0, 0.0][:2]
+        rows.append(np.concatenate([p.control_points.reshape(-1), [p.a, p.b, p.degree, s2, s1]]))
+    buffer = io.StringIO()
+    np.savetxt(buffer, np.array(rows), fmt=_OFFICIAL_FMT, delimiter=" ")
+    atomic_write_text(path, buffer.getvalue())

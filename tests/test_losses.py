@@ -1,0 +1,100 @@
+"""SweepNet's losses against values computed by hand on tiny cases."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from sweepedit.fitting.losses import (
+    LossWeights,
+    axis_chamfer_loss,
+    boltzmann_union,
+    overlap_loss,
+    parsimony_loss,
+    reconstruction_loss,
+)
+from sweepedit.fitting.warmstart import bspline_basis, fit_axis, warm_start_primitives
+from sweepedit.geometry.sweep import axis_points
+
+
+def test_boltzmann_union_of_one_primitive_is_itself() -> None:
+    occ = torch.tensor([[[0.2, 0.9, 0.0]]])
+    np.testing.assert_allclose(boltzmann_union(occ, torch.ones(1, 1)), occ[:, 0], atol=1e-7)
+
+
+def test_boltzmann_union_by_hand() -> None:
+    occ = torch.tensor([[[1.0], [0.0]]])  # two primitives, one point
+    a = 40.0
+    expected = (1.0 * math.exp(a)) / (math.exp(a) + 1.0)
+    assert float(boltzmann_union(occ, torch.ones(1, 2))[0, 0]) == pytest.approx(expected)
+    # a deselected primitive does not count
+    assert float(boltzmann_union(occ, torch.tensor([[0.0, 1.0]]))[0, 0]) == pytest.approx(0.0)
+
+
+def test_reconstruction_overlap_parsimony_by_hand() -> None:
+    union = torch.tensor([[1.0, 0.5, 0.0, 0.0]])
+    target = torch.tensor([[1.0, 1.0, 0.0, 1.0]])
+    assert float(reconstruction_loss(union, target)) == pytest.approx((0.25 + 1.0) / 4)
+    occ = torch.tensor([[[1.0, 1.0, 0.0], [1.0, 0.5, 0.0], [1.0, 0.0, 1.0]]])  # K=3, Q=3
+    sel = torch.tensor([[1.0, 1.0, 0.5]])
+    # coverage per point: 2.5, 1.5, 0.5 -> beyond 1: 1.5, 0.5, 0 -> mean 2/3
+    assert float(overlap_loss(occ, sel)) == pytest.approx(2.0 / 3.0)
+    assert float(parsimony_loss(sel)) == pytest.approx(math.sqrt(2.5), rel=1e-5)
+
+
+def test_axis_chamfer_by_hand() -> None:
+    skeleton = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    axes = torch.tensor([[[0.0, 0.0, 0.0], [0.0, 0.5, 0.0]]])  # K=1, S=2
+    # skeleton -> axes: 0 and 1 -> mean 0.5; axis -> skeleton: 0 and 0.25 -> mean 0.125
+    loss = axis_chamfer_loss(skeleton, axes, torch.ones(1))
+    assert float(loss) == pytest.approx(0.5 + 0.125, rel=1e-5)
+
+
+def test_parsimony_weight_and_axis_decay() -> None:
+    w = LossWeights()
+    assert w.parsimony_weight(16) == pytest.approx(0.6)
+    assert w.axis_weight(0.0) == pytest.approx(5.0)
+    assert w.axis_weight(1.0) == pytest.approx(5.0 * w.axis_decay)
+
+
+def test_bspline_basis_reproduces_the_axis() -> None:
+    rng = np.random.default_rng(0)
+    cps = rng.uniform(-0.5, 0.5, (5, 3))
+    t = np.linspace(0, 1, 40)
+    np.testing.assert_allclose(bspline_basis(5, t) @ cps, axis_points(cps[None], t)[0],
+                               atol=1e-12)
+
+
+def test_fit_axis_recovers_a_bspline() -> None:
+    cps = np.array([[-0.3, 0.0, 0.0], [0.0, 0.3, 0.1], [0.3, 0.0, 0.0]])
+    # dense arc-length-uniform samples of the curve
+    t = np.linspace(0, 1, 2000)
+    pts = axis_points(cps[None], t)[0]
+    s = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    even = np.interp(np.linspace(0, s[-1], 200), s, np.arange(len(pts)))
+    samples = pts[np.round(even).astype(int)]
+    fitted = fit_axis(samples, 3)
+    assert np.abs(axis_points(fitted[None], t)[0] - pts).max() < 0.02
+
+
+class _Branch:
+    def __init__(self, points: np.ndarray, radius: float) -> None:
+        self.points = points
+        self.radii = np.full(len(points), radius)
+
+
+def test_warm_start_one_primitive_per_branch_and_splits_to_fill() -> None:
+    line = np.linspace([-0.4, 0, 0], [0.4, 0, 0], 40)
+    other = np.linspace([0, -0.3, 0], [0, 0.3, 0], 30)
+    prims = warm_start_primitives([_Branch(line, 0.05), _Branch(other, 0.08)], k=2)
+    assert len(prims) == 2
+    assert prims[0].a == pytest.approx(0.05, abs=1e-6)
+    np.testing.assert_allclose(prims[0].control_points[[0, -1]], line[[0, -1]], atol=1e-9)
+    for p in prims:
+        p.validate()
+    # four primitives asked from two branches: the longest pieces are split
+    prims = warm_start_primitives([_Branch(line, 0.05), _Branch(other, 0.08)], k=4)
+    assert len(prims) == 4
