@@ -204,3 +204,14 @@ def test_invalid_parameters_name_the_field(kwargs: dict, field: str) -> None:
         SweepPrimitive(**base).validate(index=4)
     assert err.value.field == field
     assert "primitive 4" in str(err.value) and field in str(err.value)
+
+
+def test_axis_that_folds_back_keeps_a_right_handed_frame() -> None:
+    # up and straight back down: the tangent reverses at the cusp
+    cps = np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, 0.5], [0.0, 0.0, 0.0]]])
+    U, V, T = axis_frames(cps, np.linspace(0, 1, 101))[1:]
+    np.testing.assert_allclose(np.cross(U[0], V[0]), T[0], atol=1e-9)
+    np.testing.assert_allclose(U[0], U[0, :1].repeat(101, 0), atol=1e-9)  # no twist
+    p = SweepPrimitive(cps[0], a=0.1, b=0.1, degree=2.0)
+    mesh = sweep_mesh(p, 64, 32).to_trimesh()
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0

@@ -15,7 +15,7 @@ from functools import lru_cache
 import numpy as np
 
 from sweepedit.geometry.model import Abstraction, SweepPrimitive
-from sweepedit.geometry.sweep import axis_frames, scaling_factor, superellipse
+from sweepedit.geometry.sweep import _cross, axis_frames, scaling_factor, superellipse
 
 DISPLAY_STATIONS = 64
 DISPLAY_PROFILE_POINTS = 48
@@ -71,7 +71,7 @@ def _side_normals(grid: np.ndarray) -> np.ndarray:
     """Smooth normals of a (K, S, P, 3) ring grid from central differences."""
     d_theta = np.roll(grid, -1, axis=2) - np.roll(grid, 1, axis=2)
     d_t = np.gradient(grid, axis=1)
-    n = np.cross(d_theta, d_t)
+    n = _cross(np, d_theta, d_t)
     return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
 
 
