@@ -109,10 +109,13 @@ def initial_frame(T0: Any) -> tuple[Any, Any]:
     return U0, V0
 
 
-def _segment_tangent(xp: Any, d_start: Any, chord: Any) -> Any:
-    """Unit tangent from a derivative, falling back on the chord where it vanishes."""
-    small = _dot(xp, d_start, d_start) < 1e-18
-    return _normalize(xp, xp.where(small, chord, d_start))
+def _segment_tangent(xp: Any, *candidates: Any) -> Any:
+    """Unit tangent from the first candidate direction that does not vanish (a derivative
+    that is zero at a cusp falls back on the chord, a closed chord on the first leg)."""
+    direction = candidates[-1]
+    for cand in reversed(candidates[:-1]):
+        direction = xp.where(_dot(xp, cand, cand) < 1e-18, direction, cand)
+    return _normalize(xp, direction)
 
 
 def axis_frames(control_points: Any, t: Any) -> AxisFrames:
@@ -126,8 +129,8 @@ def axis_frames(control_points: Any, t: Any) -> AxisFrames:
     d0 = p1 - p0  # derivative / 2 at u = 0 of each segment, (K, m, 3)
     d1 = p2 - p1  # derivative / 2 at u = 1
     chord = p2 - p0
-    t_start = _segment_tangent(xp, d0, chord)
-    t_end = _segment_tangent(xp, d1, chord)
+    t_start = _segment_tangent(xp, d0, chord, d1)
+    t_end = _segment_tangent(xp, d1, chord, -d0)
 
     # Carry the frame across segments: the B-spline is C1, so each segment starts
     # with the tangent the previous one ended with.
@@ -146,7 +149,7 @@ def axis_frames(control_points: Any, t: Any) -> AxisFrames:
     u3 = u[None, :, None]
     points = (1.0 - u3) ** 2 * a0 + 2.0 * u3 * (1.0 - u3) * a1 + u3**2 * a2
     deriv = (1.0 - u3) * (a1 - a0) + u3 * (a2 - a1)
-    T = _segment_tangent(xp, deriv, a2 - a0)
+    T = _segment_tangent(xp, deriv, a2 - a0, a1 - a0)
     ts = take(t_start)
     U, V = _minimal_rotation(xp, ts, T, take(seg_u), take(seg_v))
     return AxisFrames(points, U, V, T)
