@@ -20,8 +20,6 @@ from sweepedit.geometry.mesher import sweep_meshes
 from sweepedit.geometry.model import Abstraction, SweepPrimitive
 
 if TYPE_CHECKING:
-    import trimesh
-
     from sweepedit.io.shapes import Shape
 
 N_SAMPLES = 100_000
@@ -31,19 +29,6 @@ F1_TAUS = (0.05, 0.01)
 # the strictest F1 threshold (0.01).
 _SAMPLE_STATIONS = 96
 _SAMPLE_PROFILE_POINTS = 64
-
-
-def winding_inside(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
-    """Inside by generalised winding number: points (N, 3) -> bool (N,).
-
-    |w| > 0.5, so an inside-out mesh (winding -1 inside) still counts as solid.
-    """
-    import igl
-
-    w = igl.fast_winding_number(np.asarray(mesh.vertices, dtype=np.float64),
-                                np.asarray(mesh.faces, dtype=np.int64),
-                                np.asarray(points, dtype=np.float64))
-    return np.abs(w) > 0.5
 
 
 def iou(pred: np.ndarray, target: np.ndarray) -> float:
@@ -117,15 +102,13 @@ def chamfer_and_f1(pred: np.ndarray, target: np.ndarray,
 def shape_inside_grid(shape: Shape, resolution: int = RESOLUTION) -> np.ndarray:
     """The shape's occupancy on the metric grid, (resolution^3,) bool, x-major.
 
-    Meshes: generalised winding number at the cell centres. Voxel grids and point
-    clouds have no closed surface to wind around, so their own occupancy grid is used.
+    The loader already holds it at its own resolution (winding number > 0.5 at the cell
+    centres for meshes); another resolution asks the shape's inside test.
     """
-    if shape.mesh is not None and len(shape.mesh.faces) and shape.kind == "mesh":
-        return winding_inside(shape.mesh, grid_points(resolution))
-    occ = np.asarray(shape.occupancy, dtype=bool)
-    if occ.shape != (resolution,) * 3:
-        raise ValueError(f"shape occupancy is {occ.shape}, the metric grid is {resolution}^3")
-    return occ.reshape(-1)
+    grid = np.asarray(shape.winding_occupancy, dtype=bool)
+    if grid.shape == (resolution,) * 3:
+        return grid.reshape(-1)
+    return np.asarray(shape.inside(grid_points(resolution)), dtype=bool)
 
 
 def evaluate(abstraction: Abstraction, shape: Shape, n_samples: int = N_SAMPLES,

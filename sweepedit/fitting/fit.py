@@ -9,13 +9,11 @@ is never taken as a result.
 
 from __future__ import annotations
 
-import hashlib
 import math
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -237,13 +235,6 @@ def _pad_primitives(init: list[SweepPrimitive], k: int, rng: np.random.Generator
     return out
 
 
-def _file_sha256(path: str | Path) -> str | None:
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
-        return None
-
-
 def _grid_iou(prims: Sequence[SweepPrimitive], target: np.ndarray) -> float:
     pred = inside_union(grid_points(target.shape[0]), prims)
     t = target.reshape(-1)
@@ -311,7 +302,7 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     iou, prims, losses = best
     abstraction = make_abstraction(prims)
     seconds = time.perf_counter() - start
-    abstraction.source = {"path": str(shape.path), "sha256": _file_sha256(shape.path)}
+    abstraction.source = {"path": str(shape.path), "sha256": shape.sha256}
     record: dict[str, Any] = {k: v for k, v in asdict(settings).items() if k != "weights"}
     record.update({"weights": asdict(settings.weights), "seconds": round(seconds, 3),
                    "cancelled": cancel.is_set(), "locked": len(locked),

@@ -25,6 +25,7 @@ from sweepedit.geometry.sweep import axis_points
 # of the radius so the warm-started primitive reaches the shape's end.
 TIP_EXTENSION = 0.8
 MIN_PIECE_POINTS = 4
+VOXEL = 1.5 / 64
 
 
 def _arc_length(points: np.ndarray) -> np.ndarray:
@@ -55,12 +56,21 @@ def fit_axis(points: np.ndarray, n_control_points: int) -> np.ndarray:
 
 
 def _radius_profile(radii: np.ndarray, t: np.ndarray, n_scaling: int) -> tuple[float, tuple]:
-    """Half-axis and scaling coefficients (s1..sk) whose f(t) follows the radii."""
-    degree = min(n_scaling, 2, len(t) - 1)
-    coeffs = np.polynomial.polynomial.polyfit(t, radii, degree) if degree > 0 else [radii.mean()]
-    base = float(np.clip(coeffs[0], *A_RANGE))
+    """Half-axis and scaling coefficients (s1..sk) whose f(t) follows the radii.
+
+    The half-axis is the median radius (a branch's end inside a junction sees the
+    junction's larger radius, which must not inflate the whole primitive); the scaling
+    follows the radius relative to it, within the scaling range.
+    """
+    base = float(np.clip(np.median(radii), *A_RANGE))
     scaling = np.zeros(n_scaling)
-    scaling[:degree] = np.clip(np.asarray(coeffs[1:degree + 1]) / base, *SCALING_RANGE)
+    degree = min(n_scaling, 2, len(t) - 1)
+    if degree > 0:
+        rel = np.clip(radii / base, 0.5, 1.5) - 1.0
+        # f(t) - 1 has no constant term: fit s1 t + s2 t^2 to the relative radius.
+        powers = np.stack([t ** (i + 1) for i in range(degree)], axis=1)
+        coeffs, *_ = np.linalg.lstsq(powers, rel, rcond=None)
+        scaling[:degree] = np.clip(coeffs, *SCALING_RANGE)
     # Halve the coefficients until f stays comfortably positive on [0, 1].
     while scaling_polynomial_min(scaling) < 0.2:
         scaling *= 0.5
@@ -90,14 +100,17 @@ def _pieces(branches: Sequence, k: int) -> list[tuple[np.ndarray, np.ndarray]]:
         pts, rad = np.asarray(br.points, float), np.asarray(br.radii, float)
         if len(pts) < 2:
             continue
-        tips = (bool(getattr(br, "start_is_tip", False)), bool(getattr(br, "end_is_tip", False)))
+        tips = (getattr(br, "start_kind", None) == "tip", getattr(br, "end_kind", None) == "tip")
         pts = _extend_tips(pts, rad, tips)
         if getattr(br, "is_loop", False) and len(pts) >= 3 * MIN_PIECE_POINTS:
             pieces += [(p, r) for p, r in zip(np.array_split(pts, 3), np.array_split(rad, 3),
                                               strict=True)]
         else:
             pieces.append((pts, rad))
-    pieces.sort(key=lambda pr: -_arc_length(pr[0])[-1])
+    # Keep the pieces that carry the most volume (length x squared radius); radii below
+    # a voxel are floored so that thin limbs still count for their length.
+    pieces.sort(key=lambda pr: -_arc_length(pr[0])[-1] * max(float(np.median(pr[1])),
+                                                              VOXEL) ** 2)
     pieces = pieces[:k]
     while 0 < len(pieces) < k:
         longest = max(range(len(pieces)), key=lambda i: _arc_length(pieces[i][0])[-1])
@@ -113,7 +126,7 @@ def _pieces(branches: Sequence, k: int) -> list[tuple[np.ndarray, np.ndarray]]:
 def warm_start_primitives(branches: Sequence, k: int, n_control_points: int = 3,
                           n_scaling: int = 2) -> list[SweepPrimitive]:
     """Up to k valid primitives from skeleton branches (objects with .points (M, 3) and
-    .radii (M,); optional .start_is_tip, .end_is_tip, .is_loop)."""
+    .radii (M,); optional .start_kind / .end_kind ("tip" extends the end) and .is_loop)."""
     out: list[SweepPrimitive] = []
     for pts, rad in _pieces(branches, k):
         cps = fit_axis(pts, n_control_points)
