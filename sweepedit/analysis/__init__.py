@@ -1,0 +1,1 @@
+"""Shape analysis: the medial-axis skeleton, quality metrics and off-screen renders."""
