@@ -353,6 +353,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SweepeditError as exc:
         print(f"sweepedit: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except OSError as exc:  # missing files, permissions, full disks: say which file
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"sweepedit: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print("sweepedit: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -22,6 +22,18 @@ if TYPE_CHECKING:
 SURFACE_COLOR = "#b0b8c8"
 
 
+def _offscreen_plotter(window_size: Sequence[int], **kwargs: Any) -> Any:
+    """An off-screen plotter. Without an X display VTK falls back on its off-screen
+    context by itself, after warning about the missing X server: that warning says
+    nothing to a user, so it is silenced."""
+    import pyvista as pv
+    import vtk
+
+    if not os.environ.get("DISPLAY"):
+        vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_ERROR)
+    return pv.Plotter(off_screen=True, window_size=list(window_size), **kwargs)
+
+
 def render_shape(shape: Shape, skeleton: Skeleton | None, path_png: str | Path,
                  window_size: tuple[int, int] = (800, 600), *,
                  camera_position: str | None = None, title: str | None = None) -> Path:
@@ -35,9 +47,8 @@ def render_shape(shape: Shape, skeleton: Skeleton | None, path_png: str | Path,
     title: a caption in the corner (default: the shape's name and branch count).
     Returns the path of the PNG.
     """
-    import pyvista as pv
 
-    plotter = pv.Plotter(off_screen=True, window_size=list(window_size))
+    plotter = _offscreen_plotter(window_size)
     try:
         plotter.set_background("white")
         _add_shape(plotter, shape, opacity=0.3)
@@ -60,9 +71,8 @@ def render_abstraction(abstraction: Abstraction, shape: Shape | None, path_png: 
                        camera_position: str | None = None, title: str | None = None) -> Path:
     """Render the visible primitives (opaque, each in its own colour) over the shape's
     surface (faint) off screen to a PNG; `shape` may be None. Returns the path."""
-    import pyvista as pv
 
-    plotter = pv.Plotter(off_screen=True, window_size=list(window_size))
+    plotter = _offscreen_plotter(window_size)
     try:
         plotter.set_background("white")
         if shape is not None:
@@ -83,13 +93,11 @@ def render_contact_sheet(items: Sequence[tuple[str, Shape | None, Abstraction]],
                          columns: int | None = None) -> Path:
     """One tile per (name, shape, abstraction): the abstraction over its shape, captioned
     with the name, in a grid (about square unless `columns` is given). Returns the path."""
-    import pyvista as pv
-
     n = max(1, len(items))
     cols = columns or math.ceil(math.sqrt(n))
     rows = math.ceil(n / cols)
-    plotter = pv.Plotter(off_screen=True, shape=(rows, cols), border=False,
-                         window_size=[cols * tile_size[0], rows * tile_size[1]])
+    plotter = _offscreen_plotter([cols * tile_size[0], rows * tile_size[1]],
+                                 shape=(rows, cols), border=False)
     try:
         for i, (name, shape, abstraction) in enumerate(items):
             plotter.subplot(i // cols, i % cols)

@@ -38,7 +38,8 @@ def write_mesh(mesh: TriangleMesh, path: str | Path, color: str | None = None) -
     if color:
         rgb = [int(color[i:i + 2], 16) for i in (1, 3, 5)]
         tm.visual.face_colors = np.tile([*rgb, 255], (len(mesh.faces), 1))
-    atomic_write_bytes(path, tm.export(file_type=fmt))
+    data = tm.export(file_type=fmt)
+    atomic_write_bytes(path, data.encode("utf-8") if isinstance(data, str) else data)
 
 
 def _to_original(mesh: TriangleMesh, normalization: Normalization) -> TriangleMesh:
