@@ -58,6 +58,9 @@ class FitSettings:
     scaling_degree: int = 2
     batch_points: int = 4096
     learning_rate: float = 3e-4
+    # The analytic sweeper's sharpness while fitting (1/length): softer than its default
+    # so that primitives feel the shape from a few voxels away.
+    sharpness: float = 100.0
     # Training the voxel encoder too costs ~3x per iteration on a CPU and buys little for
     # one fixed input; its code is computed once unless this is set.
     train_encoder: bool = False
@@ -136,7 +139,12 @@ class _Run:
             list(self.net.mlp.parameters()) + list(self.net.primitive_head.parameters())
             + list(self.net.selection_head.parameters()))
         self.optimizer = torch.optim.Adam(params, lr=settings.learning_rate)
-        self.sweeper = load_sweeper(settings.sweeper)
+        self.sweeper = (load_sweeper("analytic", sharpness=settings.sharpness)
+                        if settings.sweeper == "analytic" else load_sweeper(settings.sweeper))
+        # Both sweepers read the primitive through its key points or frames, so any
+        # number of control points and scaling terms works once they know the layout.
+        self.sweeper.layout = self.layout
+        self.sweeper.requires_grad_(False)
 
         samples = shape.samples
         self.points = torch.as_tensor(samples.points, dtype=torch.float32)
@@ -191,8 +199,8 @@ class _Run:
                        for group in self.optimizer.param_groups for p in group["params"])
         if grads_ok and torch.isfinite(total):
             self.optimizer.step()
-        losses = {k: float(v) for k, v in terms.items()}
-        losses["total"] = float(total)
+        losses = {k: float(v.detach()) for k, v in terms.items()}
+        losses["total"] = float(total.detach())
         return losses
 
     def snapshot(self) -> tuple[torch.Tensor, torch.Tensor] | None:

@@ -1,0 +1,91 @@
+"""Fitting: a known sweep is recovered, cancellation, seeds, locked primitives."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sweepedit.fitting.fit import FitSettings, fit_abstraction
+from sweepedit.geometry.mesher import sweep_mesh
+from sweepedit.geometry.model import SweepPrimitive
+from sweepedit.io.mesh_export import write_mesh
+from sweepedit.io.shapes import load_shape
+
+TRUTH = SweepPrimitive([[-0.4, -0.1, 0.0], [0.0, 0.35, 0.05], [0.4, -0.1, 0.0]], a=0.09,
+                       b=0.06, degree=2.5, scaling=(0.2, -0.3))
+
+
+@pytest.fixture(scope="module")
+def arch_shape(tmp_path_factory: pytest.TempPathFactory):
+    path = tmp_path_factory.mktemp("arch") / "arch.stl"
+    write_mesh(sweep_mesh(TRUTH, 96, 64), path)
+    return load_shape(path)
+
+
+def quick(**kwargs) -> FitSettings:
+    base = {"primitives": 2, "iterations": 60, "batch_points": 2048, "seed": 0}
+    base.update(kwargs)
+    return FitSettings(**base)
+
+
+def test_short_fit_recovers_a_known_sweep(arch_shape) -> None:
+    from sweepedit.analysis.metrics import evaluate
+
+    result = fit_abstraction(arch_shape, quick(iterations=120))
+    metrics = evaluate(result.abstraction, arch_shape, n_samples=20000)
+    assert metrics["iou"] >= 0.8, metrics
+    assert result.abstraction.fit["grid_iou"] == pytest.approx(result.iou)
+    for p in result.abstraction.primitives:
+        p.validate()
+
+
+def test_fit_is_reproducible_for_a_seed(arch_shape) -> None:
+    a = fit_abstraction(arch_shape, quick(iterations=15))
+    b = fit_abstraction(arch_shape, quick(iterations=15))
+    assert len(a.abstraction) == len(b.abstraction)
+    for p, q in zip(a.abstraction.primitives, b.abstraction.primitives, strict=True):
+        np.testing.assert_array_equal(p.control_points, q.control_points)
+        assert (p.a, p.b, p.degree, p.scaling) == (q.a, q.b, q.degree, q.scaling)
+
+
+def test_cancel_returns_a_valid_best_so_far(arch_shape) -> None:
+    cancel = threading.Event()
+    seen = []
+
+    def callback(progress) -> None:
+        seen.append(progress.iteration)
+        for p in progress.abstraction.primitives:
+            p.validate()
+        if progress.iteration >= 10:
+            cancel.set()
+
+    result = fit_abstraction(arch_shape, quick(iterations=10_000, progress_every=5),
+                             callback=callback, cancel=cancel)
+    assert result.cancelled
+    assert max(seen) < 100
+    assert len(result.abstraction) >= 1
+    for p in result.abstraction.primitives:
+        p.validate()
+
+
+def test_locked_primitives_are_unchanged(arch_shape) -> None:
+    locked = TRUTH.copy()
+    locked.locked = True
+    locked.name = "kept"
+    result = fit_abstraction(arch_shape, quick(primitives=1, iterations=20), locked=[locked])
+    first = result.abstraction.primitives[0]
+    np.testing.assert_array_equal(first.control_points, TRUTH.control_points)
+    assert (first.a, first.b, first.degree, first.scaling, first.name) == (
+        TRUTH.a, TRUTH.b, TRUTH.degree, TRUTH.scaling, "kept")
+
+
+def test_empty_shape_is_a_clear_error(tmp_path: Path) -> None:
+    from sweepedit.errors import SweepeditError
+
+    grid = np.zeros((16, 16, 16), dtype=bool)
+    np.save(tmp_path / "empty.npy", grid)
+    with pytest.raises(SweepeditError):
+        fit_abstraction(load_shape(tmp_path / "empty.npy"), quick())
