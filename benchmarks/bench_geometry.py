@@ -10,10 +10,10 @@ import time
 
 import numpy as np
 
+from sweepedit.cli import DEFAULT_SHAPES
 from sweepedit.geometry.inside import grid_points, inside_union
 from sweepedit.geometry.mesher import sweep_mesh, sweep_meshes, union_mesh
 from sweepedit.io.params import read_abstraction
-from sweepedit.cli import DEFAULT_SHAPES
 
 
 def timed(fn, repeat: int) -> list[float]:

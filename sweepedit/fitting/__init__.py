@@ -1,0 +1,18 @@
+"""Differentiable fitting in torch: parameter layout, key point sampler, sweepers.
+
+params.py            the (B, K, P) parameter layout (P = 3n + 3 + k: control points, then
+                     a, b, d, then s1..sk in ascending powers), ranges, SweepPrimitive I/O
+keypoints.py         875 key points per primitive (the neural sweeper's input)
+sweepers.py          Sweeper interface: AnalyticSweeper, NeuralSweeper, load_sweeper
+train_sweeper.py     training of the neural sweeper on random sweeps (exact labels)
+evaluate_sweeper.py  accuracy against the exact inside test, and speed
+"""
+
+from sweepedit.fitting.keypoints import N_KEYPOINTS, sample_keypoints
+from sweepedit.fitting.params import DEFAULT_LAYOUT, ParamLayout
+from sweepedit.fitting.sweepers import AnalyticSweeper, NeuralSweeper, Sweeper, load_sweeper
+
+__all__ = [
+    "DEFAULT_LAYOUT", "N_KEYPOINTS", "AnalyticSweeper", "NeuralSweeper", "ParamLayout",
+    "Sweeper", "load_sweeper", "sample_keypoints",
+]

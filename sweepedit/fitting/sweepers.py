@@ -1,0 +1,582 @@
+"""Differentiable sweepers: primitive parameters + query points -> soft occupancy.
+
+Common interface (`Sweeper`):
+
+    forward(params (B, K, P), queries (B, Q, 3)) -> occupancy (B, K, Q) in [0, 1]
+
+one occupancy per primitive and query (the fitting code forms the union). Parameters use
+the layout of sweepedit.fitting.params (control points, a, b, d, s1..sk).
+
+`AnalyticSweeper` is a smooth version of the exact inside test (sweepedit.geometry.inside)
+that converges to it as its sharpness grows. `NeuralSweeper` is a compact POCO-like
+network over the primitive's 875 key points (sweepedit.fitting.keypoints), trained on
+random sweeps against the exact test (sweepedit.fitting.train_sweeper); its weights ship
+in resources/sweeper_neural.pt. `load_sweeper(kind)` builds the default of each kind.
+
+Both reuse the shared sweep math of sweepedit.geometry.sweep; neither has a copy of it.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from sweepedit.fitting.keypoints import (
+    LOOP_POINTS,
+    N_AXIS,
+    N_KEYPOINTS,
+    N_LOOPS,
+    sample_keypoints,
+    split_keypoints,
+)
+from sweepedit.fitting.params import DEFAULT_LAYOUT, ParamLayout
+from sweepedit.geometry.sweep import axis_frames, scaling_factor, superellipse_level
+
+RESOURCES = Path(__file__).resolve().parents[2] / "resources"
+NEURAL_WEIGHTS = RESOURCES / "sweeper_neural.pt"
+
+_EPS = 1e-9
+
+
+def _normalize(v: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
+    return v / torch.sqrt((v * v).sum(-1, keepdim=True) + eps * eps)
+
+
+class Sweeper(nn.Module):
+    """Base class: forward(params (B, K, P), queries (B, Q, 3)) -> occupancy (B, K, Q).
+
+    layout: the parameter layout; None infers it from P with `n_scaling` coefficients.
+    """
+
+    def __init__(self, layout: ParamLayout | None = None, n_scaling: int = 2) -> None:
+        super().__init__()
+        self.layout = layout
+        self.n_scaling = n_scaling
+
+    def layout_for(self, params: torch.Tensor) -> ParamLayout:
+        """The layout of params (..., P)."""
+        if self.layout is not None:
+            return self.layout
+        if params.shape[-1] == DEFAULT_LAYOUT.size:
+            return DEFAULT_LAYOUT
+        return ParamLayout.infer(params.shape[-1], self.n_scaling)
+
+    @staticmethod
+    def _check(params: torch.Tensor, queries: torch.Tensor) -> None:
+        if params.ndim != 3 or queries.ndim != 3 or queries.shape[-1] != 3:
+            raise ValueError(f"expected params (B, K, P) and queries (B, Q, 3), got "
+                             f"{tuple(params.shape)} and {tuple(queries.shape)}")
+        if params.shape[0] != queries.shape[0]:
+            raise ValueError("params and queries must have the same batch size")
+
+    def forward(self, params: torch.Tensor, queries: torch.Tensor) -> torch.Tensor:
+        """params (B, K, P), queries (B, Q, 3) -> occupancy (B, K, Q) in [0, 1]."""
+        raise NotImplementedError
+
+
+# ----------------------------------------------------------------------------------------
+# Analytic sweeper
+# ----------------------------------------------------------------------------------------
+
+
+class AnalyticSweeper(Sweeper):
+    """A smooth approximation of the exact inside test.
+
+    The axis is sampled at `stations` parameters t (frames from axis_frames) and extended
+    by one extra station beyond each end (along the end tangents, `cap_margin` long). For
+    each query q, h_i = (q - s_i).T_i is evaluated at every station (one matmul); a sign
+    change of h between stations i and i+1 brackets a plane through q (as in the exact
+    test). Among the brackets, the `candidates` nearest to q (by distance to station i)
+    are kept -- a discrete choice, made without gradients. For each kept bracket, the root
+    is interpolated linearly (λ = h_i / (h_i - h_{i+1})), and with it the point, frame,
+    scale f and arc length. The in-plane coordinates x, y (divided by f) give the
+    superellipse level L = |x/a|^d + |y/b|^d (sweep.superellipse_level); r = L^(1/d) is a
+    homogeneous radius, and sd = ρ (1 - 1/r), with ρ the in-plane distance to the axis, is
+    the signed distance to the profile's rim along the ray from the axis. The ends enter
+    as the arc length e from each end (negative beyond the caps). The bracket's occupancy
+    is sigmoid(min(-sd, e_start, e_end) / τ) (a CSG intersection, whose 0.5 level is the
+    boundary itself), with the temperature τ = 1 / sharpness (a length), and the
+    primitive's occupancy is the maximum over the kept brackets. As the sharpness grows
+    (and with enough stations) this tends to the exact test.
+
+    sharpness: 1/τ in 1/length units (default 200: τ = 0.005, a third of a 64^3 cell;
+    lower it for wider gradient bands while fitting -- the 0.5 level barely moves).
+    stations: number of axis samples S (default 48). candidates: brackets kept per query
+    (default 3; folded axes and fat profiles cross several planes).
+    Queries outside a box around the primitive, or farther than its largest radius from
+    every 4th station, are not evaluated (occupancy 0, below sigmoid(-12) there anyway).
+    """
+
+    def __init__(self, sharpness: float = 200.0, stations: int = 48, candidates: int = 3,
+                 cap_margin: float | None = None, layout: ParamLayout | None = None,
+                 n_scaling: int = 2) -> None:
+        super().__init__(layout, n_scaling)
+        if stations < 2:
+            raise ValueError("stations must be at least 2")
+        self.sharpness = float(sharpness)
+        self.stations = int(stations)
+        self.candidates = int(candidates)
+        self.cap_margin = cap_margin
+
+    def extra_repr(self) -> str:
+        return f"sharpness={self.sharpness}, stations={self.stations}, " \
+               f"candidates={self.candidates}"
+
+    def _margin(self) -> float:
+        return self.cap_margin if self.cap_margin is not None else 8.0 / self.sharpness
+
+    def forward(self, params: torch.Tensor, queries: torch.Tensor) -> torch.Tensor:
+        """params (B, K, P), queries (B, Q, 3) -> occupancy (B, K, Q) in [0, 1]."""
+        self._check(params, queries)
+        B, K, _ = params.shape
+        Q = queries.shape[1]
+        N = B * K
+        st = self._stations(params)
+        q = queries[:, None].expand(B, K, Q, 3).reshape(N, Q, 3)
+        rows, cols, bracket, valid = self._brackets(q.detach(), st)
+        out = q.new_zeros(N * Q)
+        if rows.numel() == 0:
+            return out.reshape(B, K, Q) + 0.0 * params.sum()
+        S1 = st["affine"].shape[1]
+        C = bracket.shape[1]
+        flat = (rows[:, None] * S1 + bracket).reshape(-1)
+        aff = st["affine"].reshape(N * S1, 4, 6).index_select(0, flat)  # (RC, 4, 6)
+        extra = st["extra"].reshape(N * S1, 8).index_select(0, flat)  # (RC, 8)
+        qr = q.reshape(N * Q, 3).index_select(0, rows * Q + cols)  # (R, 3)
+        qh = torch.cat([qr, torch.ones_like(qr[:, :1])], dim=1)
+        if C > 1:
+            qh = qh.repeat_interleave(C, 0)
+        # Local coordinates (h, x, y) of the query in both stations' frames.
+        h0, x0, y0, h1, x1, y1 = (qh[:, :, None] * aff).sum(1).unbind(1)
+        f0, f1, e0, e1, a, b, d, total = extra.unbind(1)
+        denom = h0 - h1
+        denom = torch.where(denom.abs() < 1e-12, torch.full_like(denom, 1e-12), denom)
+        lam = torch.clamp(h0 / denom, 0.0, 1.0)
+        xw = x0 + lam * (x1 - x0)
+        yw = y0 + lam * (y1 - y0)
+        f = torch.clamp(f0 + lam * (f1 - f0), min=1e-4)
+        e = e0 + lam * (e1 - e0)
+        level = superellipse_level(xw / f, yw / f, torch.stack([a, b, d], dim=1))
+        r = torch.clamp(level, min=1e-12) ** (1.0 / d)
+        rho = torch.sqrt(xw * xw + yw * yw + 1e-12)
+        sd = rho - rho / torch.clamp(r, min=1e-6)
+        k = self.sharpness
+        # Intersection of the profile and the two end caps as the minimum of their signed
+        # distances, so that the 0.5 level is exactly the (linearised) boundary.
+        occ = torch.sigmoid(k * torch.minimum(-sd, torch.minimum(e, total - e)))
+        occ = torch.where(valid.reshape(-1), occ, torch.zeros_like(occ))
+        if C > 1:
+            occ = occ.reshape(-1, C).amax(dim=1)
+        out = out.index_put((rows * Q + cols,), occ)
+        return out.reshape(B, K, Q)
+
+    def _stations(self, params: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Tables of the sampled (and end-extended) axis, per bracket [i, i+1].
+
+        affine (N, S+1, 4, 6): maps [q, 1] -> (h, x, y) at station i, then at i+1;
+        extra (N, S+1, 8): f_i, f_i+1, arc_i, arc_i+1, a, b, d, total arc length;
+        points (N, S+2, 3), tangents (N, S+2, 3); box_lo, box_hi (N, 3): boxes that hold
+        the soft solid.
+        """
+        B, K, _ = params.shape
+        layout = self.layout_for(params)
+        cps, profile, scaling = layout.split(params.reshape(B * K, -1))
+        N, S = B * K, self.stations
+        t = torch.linspace(0.0, 1.0, S, dtype=params.dtype, device=params.device)
+        fr = axis_frames(cps, t)  # each (N, S, 3)
+        f = scaling_factor(scaling, t)  # (N, S)
+        seg = torch.sqrt(((fr.points[:, 1:] - fr.points[:, :-1]) ** 2).sum(-1) + _EPS ** 2)
+        arc = torch.cat([torch.zeros_like(seg[:, :1]), torch.cumsum(seg, dim=1)], dim=1)
+        total = arc[:, -1]
+        margin = self._margin()
+        pts = torch.cat([fr.points[:, :1] - margin * fr.T[:, :1], fr.points,
+                         fr.points[:, -1:] + margin * fr.T[:, -1:]], dim=1)  # (N, S+2, 3)
+
+        def ext(x: torch.Tensor) -> torch.Tensor:
+            return torch.cat([x[:, :1], x, x[:, -1:]], dim=1)
+
+        axes = torch.stack([ext(fr.T), ext(fr.U), ext(fr.V)], dim=-1)  # (N, S+2, 3, 3)
+        bias = -(pts[..., None] * axes).sum(-2, keepdim=True)  # (N, S+2, 1, 3)
+        affine = torch.cat([axes, bias], dim=-2)  # (N, S+2, 4, 3)
+        affine = torch.cat([affine[:, :-1], affine[:, 1:]], dim=-1)  # (N, S+1, 4, 6)
+        fe = ext(f)
+        arc = torch.cat([arc[:, :1] - margin, arc, arc[:, -1:] + margin], dim=1)
+        per_prim = torch.cat([profile, total[:, None]], dim=1)[:, None].expand(N, S + 1, 4)
+        extra = torch.cat([torch.stack([fe[:, :-1], fe[:, 1:], arc[:, :-1], arc[:, 1:]], -1),
+                           per_prim], dim=-1)
+        radius = f.abs().amax(dim=1) * torch.sqrt(profile[:, 0] ** 2 + profile[:, 1] ** 2)
+        pad = radius + seg.amax(dim=1) + 12.0 / self.sharpness
+        # Coarse stations (every 4th, both ends included) for a cheap distance cull: a
+        # query farther than `reach` from all of them has occupancy < sigmoid(-12).
+        coarse = torch.cat([pts[:, :-1:4], pts[:, -1:]], dim=1)
+        coarse_gap = torch.sqrt(((coarse[:, 1:] - coarse[:, :-1]) ** 2).sum(-1)).amax(dim=1)
+        return {"affine": affine, "extra": extra, "points": pts, "tangents": ext(fr.T),
+                "box_lo": pts.amin(dim=1) - pad[:, None], "box_hi": pts.amax(dim=1) + pad[:, None],
+                "coarse": coarse, "reach": pad + coarse_gap}
+
+    @torch.no_grad()
+    def _brackets(self, q: torch.Tensor, st: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
+        """The brackets nearest to each in-box query (no gradient).
+
+        q (N, Q, 3) -> rows, cols (R,): (primitive, query) pairs with the query in the
+        primitive's box; bracket (R, C): indices i of the `candidates` brackets [i, i+1]
+        where h changes sign whose station i is nearest to the query; valid (R, C): False
+        where there are fewer brackets.
+        """
+        N = q.shape[0]
+        pts, tan = st["points"].detach(), st["tangents"].detach()
+        coarse, reach = st["coarse"].detach(), st["reach"].detach()
+        offs = (pts * tan).sum(-1)  # (N, S+2)
+        sq = (pts[:, :-1] ** 2).sum(-1)  # (N, S+1)
+        inside = ((q >= st["box_lo"].detach()[:, None])
+                  & (q <= st["box_hi"].detach()[:, None])).all(-1)  # (N, Q)
+        rows_l, cols_l, idx_l, ok_l = [], [], [], []
+        for n in range(N):
+            cols = torch.nonzero(inside[n]).squeeze(1)
+            if cols.numel() == 0:
+                continue
+            qs = q[n].index_select(0, cols)
+            co = coarse[n]
+            near = torch.addmm((co * co).sum(-1), qs, co.T, alpha=-2.0).amin(dim=1) + (
+                qs * qs).sum(-1) <= reach[n] ** 2
+            if not bool(near.all()):
+                cols, qs = cols[near], qs[near]
+                if cols.numel() == 0:
+                    continue
+            h = torch.addmm(-offs[n], qs, tan[n].T)  # (Qn, S+2)
+            same = (h[:, :-1] * h[:, 1:]) > 0.0  # no sign change in the bracket
+            d2 = torch.addmm(sq[n], qs, pts[n, :-1].T, alpha=-2.0)  # |p|^2 - 2 q.p
+            d2.masked_fill_(same, math.inf)
+            vals, idxs = [], []
+            for c in range(self.candidates):
+                val, idx = d2.min(dim=1, keepdim=True)
+                vals.append(val)
+                idxs.append(idx)
+                if c + 1 < self.candidates:
+                    d2.scatter_(1, idx, math.inf)
+            rows_l.append(torch.full_like(cols, n))
+            cols_l.append(cols)
+            idx_l.append(torch.cat(idxs, dim=1))
+            ok_l.append(torch.isfinite(torch.cat(vals, dim=1)))
+        if not rows_l:
+            empty = torch.zeros(0, dtype=torch.long, device=q.device)
+            return empty, empty, empty[:, None], torch.zeros(0, 1, dtype=torch.bool,
+                                                              device=q.device)
+        return torch.cat(rows_l), torch.cat(cols_l), torch.cat(idx_l), torch.cat(ok_l)
+
+
+# ----------------------------------------------------------------------------------------
+# Neural sweeper
+# ----------------------------------------------------------------------------------------
+
+# The axis point nearest to each loop (loops at t = l/14, axis points at t = i/124).
+_LOOP_AXIS = [round(i * (N_AXIS - 1) / (N_LOOPS - 1)) for i in range(N_LOOPS)]
+# Coarse axis points for the neighbour search, and the fine window searched around them.
+_COARSE_STEP = 4
+_AXIS_OFFSETS = (-1, 0, 1)
+_LOOP_OFFSETS = (-2, -1, 0, 1)
+
+
+def _mlp(*sizes: int) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i in range(len(sizes) - 1):
+        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2:
+            layers.append(nn.ReLU())
+    return nn.Sequential(*layers)
+
+
+def _squash(o: torch.Tensor, scale: float = 4.0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bounded offsets: o (..., 3) -> o / (1 + |o|/scale) (..., 3) and its norm (..., 1)."""
+    norm = torch.sqrt((o * o).sum(-1, keepdim=True) + 1e-12)
+    factor = 1.0 / (1.0 + norm / scale)
+    return o * factor, norm * factor
+
+
+class NeuralSweeper(Sweeper):
+    """A compact POCO-like point-cloud-to-occupancy network over the 875 key points.
+
+    Encoder (per primitive, on its key points only). Every key point gets a local frame
+    and scale computed from the key points themselves: a loop point the in-plane outward
+    normal (from its loop neighbours and the axis tangent), the loop's tangent direction
+    and the axis tangent, scaled by the loop's RMS radius; an axis point the axis tangent
+    and the direction to its nearest loop's θ = 0 point. A point convolution over the key
+    point grid (the offsets to the neighbours along θ and along t, expressed in the local
+    frame) and a PointNet max-pool per loop and over the primitive give each key point a
+    latent vector (`latent` wide). Everything is invariant to rotation, translation and
+    scale of the primitive.
+
+    Decoder (per query). The query's neighbours among the key points are found through
+    the key point structure (no gradient): the nearest axis point (coarse-to-fine), its
+    two axis neighbours, and on each of the two loops that bracket it the 4 loop points
+    around the query's polar angle -- k = 11 neighbours. For each neighbour j the offset
+    o_j = R_j (q - p_j) / ℓ_j in its local frame (squashed) and its projected latent form
+    a feature e_j; an attention weight softmax_j(score_j) (score from the latent and the
+    offset) pools the e_j, and an MLP maps the pooled feature plus the e_j in the
+    neighbours' fixed order to the occupancy logit. Queries outside the primitive's padded
+    bounding box, or farther from its axis than its largest radius (plus the gap between
+    the coarse axis points), cannot be inside: they get occupancy 0 (logit -30) and are
+    not evaluated.
+
+    latent: key point latent width; value: width of the projected latent ν_j per
+    neighbour; hidden: width of the decoder MLP. About 58k parameters by default.
+    """
+
+    def __init__(self, latent: int = 48, value: int = 8, hidden: int = 96,
+                 layout: ParamLayout | None = None, n_scaling: int = 2) -> None:
+        super().__init__(layout, n_scaling)
+        self.config = {"latent": latent, "value": value, "hidden": hidden}
+        width = 64
+        self.loop_in = _mlp(18, width, width)
+        self.loop_pool = _mlp(width, width)
+        self.loop_out = _mlp(3 * width, width, latent)
+        self.axis_out = _mlp(14 + 2 * width, width, latent)
+        self.value_head = nn.Linear(latent, value + 1)  # value ν_j and score bias β_j
+        self.score = nn.Linear(4, 1, bias=False)
+        self.k = len(_AXIS_OFFSETS) + 2 * len(_LOOP_OFFSETS)
+        feat = 4 + value
+        self.decoder = _mlp(feat * (self.k + 1), hidden, 64, 1)
+
+    # -- encoder ---------------------------------------------------------------------
+
+    def encode(self, keypoints: torch.Tensor) -> dict[str, torch.Tensor]:
+        """keypoints (N, 875, 3) -> a table of the key points for the decoder.
+
+        Returns dict with table (N, 875, 12 + value + 1) = [p (3), R/ℓ (9), ν, β], and the
+        search helpers: axis (N, 125, 3), loop centres (N, 15, 3), loop frames u, v
+        (N, 15, 3), loop polar angles (N, 15, 50), box_lo, box_hi (N, 3).
+        """
+        axis, loops = split_keypoints(keypoints)
+        N = axis.shape[0]
+        centre = loops.mean(dim=2)  # (N, 15, 3): exact for the point-symmetric profile
+        rel = loops - centre[:, :, None]
+        ell = torch.sqrt((rel * rel).sum(-1).mean(-1) + 1e-12).clamp(min=1e-4)  # (N, 15)
+        d_axis = torch.cat([axis[:, 1:2] - axis[:, :1], axis[:, 2:] - axis[:, :-2],
+                            axis[:, -1:] - axis[:, -2:-1]], dim=1)
+        t_axis = _normalize(d_axis)  # (N, 125, 3)
+        e_t = t_axis[:, _LOOP_AXIS]  # (N, 15, 3)
+        r0 = rel[:, :, 0]
+        u_l = _normalize(r0 - (r0 * e_t).sum(-1, keepdim=True) * e_t)
+        v_l = torch.linalg.cross(e_t, u_l)
+        d_theta = torch.roll(loops, -1, 2) - torch.roll(loops, 1, 2)
+        et4 = e_t[:, :, None].expand_as(loops)
+        n = _normalize(torch.linalg.cross(d_theta, et4))
+        orient = torch.where((n * rel).sum((-1, -2), keepdim=True) < 0, -1.0, 1.0)
+        n = n * orient
+        e_th = torch.linalg.cross(et4, n)
+        frame = torch.stack([n, e_th, et4], dim=-2) / ell[:, :, None, None, None]  # (N,15,50,3,3)
+
+        def local(v: torch.Tensor) -> torch.Tensor:
+            return (frame * v[..., None, :]).sum(-1)
+
+        inv = 1.0 / ell[:, :, None, None]
+        f_loop = torch.stack([(rel * u_l[:, :, None]).sum(-1), (rel * v_l[:, :, None]).sum(-1)],
+                             dim=-1) * inv
+        f_rad = local(rel)[..., :2]
+        nb_th = torch.cat([local(torch.roll(loops, -1, 2) - loops)[..., :2],
+                           local(torch.roll(loops, 1, 2) - loops)[..., :2]], dim=-1)
+        mask_next = torch.ones(N_LOOPS, dtype=loops.dtype, device=loops.device)
+        mask_next[-1] = 0.0
+        mask_prev = torch.flip(mask_next, [0])
+        nxt = torch.cat([loops[:, 1:], loops[:, -1:]], dim=1)
+        prv = torch.cat([loops[:, :1], loops[:, :-1]], dim=1)
+        nb_t = torch.cat([local(nxt - loops) * mask_next[:, None, None],
+                          local(prv - loops) * mask_prev[:, None, None]], dim=-1)
+        log_ell = torch.log(ell)
+        lr = torch.stack([
+            (torch.cat([log_ell[:, 1:], log_ell[:, -1:]], 1) - log_ell) * mask_next,
+            (torch.cat([log_ell[:, :1], log_ell[:, :-1]], 1) - log_ell) * mask_prev], dim=-1)
+        ends = torch.stack([1.0 - mask_prev, 1.0 - mask_next], dim=-1)  # (15, 2)
+        per_loop = torch.cat([lr, ends.expand(N, -1, -1)], dim=-1)[:, :, None].expand(
+            -1, -1, LOOP_POINTS, -1)
+        feats = torch.cat([f_loop, f_rad, nb_th, nb_t, per_loop], dim=-1)  # (N,15,50,18)
+        z1 = self.loop_in(feats)
+        g_l = self.loop_pool(z1).amax(dim=2)  # (N, 15, W)
+        g = g_l.amax(dim=1)  # (N, W)
+        W = z1.shape[-1]
+        z_loop = self.loop_out(torch.cat([z1, g_l[:, :, None].expand(-1, -1, LOOP_POINTS, -1),
+                                          g[:, None, None].expand(-1, N_LOOPS, LOOP_POINTS, -1)],
+                                         dim=-1))
+
+        # Axis points: frame from the axis tangent and the nearest loop's θ = 0 direction.
+        pos = torch.arange(N_AXIS, device=axis.device, dtype=axis.dtype) * (
+            (N_LOOPS - 1) / (N_AXIS - 1))
+        l0 = torch.clamp(torch.floor(pos).long(), max=N_LOOPS - 2)
+        w = (pos - l0.to(pos.dtype))[None, :, None]
+        near = torch.round(pos).long()
+        ua = u_l[:, near]
+        ua = _normalize(ua - (ua * t_axis).sum(-1, keepdim=True) * t_axis)
+        va = torch.linalg.cross(t_axis, ua)
+        ell_a = torch.exp(log_ell[:, l0] * (1 - w[..., 0]) + log_ell[:, l0 + 1] * w[..., 0])
+        frame_a = torch.stack([ua, va, t_axis], dim=-2) / ell_a[..., None, None]  # (N,125,3,3)
+        ar = torch.arange(N_AXIS, device=axis.device)
+        nb = []
+        for off in (1, -1, 6, -6):
+            j = torch.clamp(ar + off, 0, N_AXIS - 1)
+            ok = ((ar + off >= 0) & (ar + off < N_AXIS)).to(axis.dtype)[None, :, None]
+            nb.append((frame_a * (axis[:, j] - axis)[..., None, :]).sum(-1) * ok)
+        a_ends = torch.zeros(N_AXIS, 2, dtype=axis.dtype, device=axis.device)
+        a_ends[0, 0] = 1.0
+        a_ends[-1, 1] = 1.0
+        g_a = g_l[:, l0] * (1 - w) + g_l[:, l0 + 1] * w
+        z_axis = self.axis_out(torch.cat([*nb, a_ends.expand(N, -1, -1), g_a,
+                                          g[:, None].expand(-1, N_AXIS, W)], dim=-1))
+
+        latent = torch.cat([z_axis, z_loop.reshape(N, N_LOOPS * LOOP_POINTS, -1)], dim=1)
+        frames = torch.cat([frame_a.reshape(N, N_AXIS, 9),
+                            frame.reshape(N, N_LOOPS * LOOP_POINTS, 9)], dim=1)
+        table = torch.cat([keypoints, frames, self.value_head(latent)], dim=-1)
+        # Polar angle of every loop point in its loop's (u, v) frame, increasing in θ.
+        phi = torch.remainder(torch.atan2((rel * v_l[:, :, None]).sum(-1),
+                                          (rel * u_l[:, :, None]).sum(-1)), 2.0 * math.pi)
+        radius = torch.sqrt((rel * rel).sum(-1)).amax(dim=(1, 2))  # (N,)
+        gap = torch.sqrt(((axis[:, 1:] - axis[:, :-1]) ** 2).sum(-1)).amax(dim=1)
+        pad = (1.1 * radius + 2.0 * gap + 0.01)[:, None]
+        coarse = axis[:, ::_COARSE_STEP]
+        coarse_gap = torch.sqrt(((coarse[:, 1:] - coarse[:, :-1]) ** 2).sum(-1)).amax(dim=1)
+        return {"table": table, "axis": axis, "centre": centre, "u": u_l, "v": v_l,
+                "phi": phi, "box_lo": keypoints.amin(dim=1) - pad,
+                "reach": 1.1 * radius + coarse_gap + 0.01,
+                "box_hi": keypoints.amax(dim=1) + pad}
+
+    # -- neighbour search ---------------------------------------------------------------
+
+    @torch.no_grad()
+    def neighbours(self, q: torch.Tensor, enc: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
+        """Structured k-nearest key points of the in-box queries (no gradient).
+
+        q (N, Q, 3) -> rows, cols (R,) (primitive, query) pairs inside the primitive's
+        box, and nbr (R, 11) key point indices in [0, 875).
+        """
+        N = q.shape[0]
+        axis, centre = enc["axis"].detach(), enc["centre"].detach()
+        u, v = enc["u"].detach(), enc["v"].detach()
+        phi = enc["phi"].detach().contiguous()
+        reach = enc["reach"].detach()
+        inside = ((q >= enc["box_lo"].detach()[:, None])
+                  & (q <= enc["box_hi"].detach()[:, None])).all(-1)
+        coarse_idx = torch.arange(0, N_AXIS, _COARSE_STEP, device=q.device)
+        window = torch.arange(-_COARSE_STEP + 1, _COARSE_STEP, device=q.device)
+        a_off = torch.tensor(_AXIS_OFFSETS, device=q.device)
+        m_off = torch.tensor(_LOOP_OFFSETS, device=q.device)
+        rows_l, cols_l, nbr_l = [], [], []
+        for n in range(N):
+            cols = torch.nonzero(inside[n]).squeeze(1)
+            if cols.numel() == 0:
+                continue
+            qs = q[n].index_select(0, cols)
+            ac = axis[n, coarse_idx]
+            d2 = torch.addmm((ac * ac).sum(-1), qs, ac.T, alpha=-2.0)
+            best, arg = d2.min(dim=1)
+            # Only queries within reach of the axis can be inside (as in the exact test).
+            near = (best + (qs * qs).sum(-1)) <= reach[n] ** 2
+            if not bool(near.all()):
+                cols, qs, arg = cols[near], qs[near], arg[near]
+                if cols.numel() == 0:
+                    continue
+            ic = coarse_idx[arg]
+            cand = torch.clamp(ic[:, None] + window, 0, N_AXIS - 1)  # (Qn, 7)
+            df = ((qs[:, None] - axis[n, cand]) ** 2).sum(-1)
+            i_star = cand.gather(1, df.argmin(dim=1, keepdim=True))[:, 0]
+            l0 = torch.clamp((i_star * (N_LOOPS - 1)) // (N_AXIS - 1), max=N_LOOPS - 2)
+            # Polar angle of the query in every loop's frame, then its slot in each loop.
+            rel = qs[:, None] - centre[n][None]  # (Qn, 15, 3)
+            ang = torch.remainder(torch.atan2((rel * v[n][None]).sum(-1),
+                                              (rel * u[n][None]).sum(-1)), 2.0 * math.pi)
+            slot = torch.searchsorted(phi[n], ang.T.contiguous()).T  # (Qn, 15)
+            idx = [torch.clamp(i_star[:, None] + a_off, 0, N_AXIS - 1)]
+            for loop in (l0, l0 + 1):
+                m = slot.gather(1, loop[:, None])  # (Qn, 1)
+                m = torch.remainder(m + m_off, LOOP_POINTS)
+                idx.append(N_AXIS + loop[:, None] * LOOP_POINTS + m)
+            rows_l.append(torch.full_like(cols, n))
+            cols_l.append(cols)
+            nbr_l.append(torch.cat(idx, dim=1))
+        if not rows_l:
+            empty = torch.zeros(0, dtype=torch.long, device=q.device)
+            return empty, empty, torch.zeros(0, self.k, dtype=torch.long, device=q.device)
+        return torch.cat(rows_l), torch.cat(cols_l), torch.cat(nbr_l)
+
+    # -- decoder -------------------------------------------------------------------------
+
+    def forward_logits(self, params: torch.Tensor, queries: torch.Tensor,
+                       outside: float = -30.0) -> torch.Tensor:
+        """params (B, K, P), queries (B, Q, 3) -> occupancy logits (B, K, Q).
+
+        Queries outside a primitive's box get the logit `outside`.
+        """
+        self._check(params, queries)
+        B, K, _ = params.shape
+        Q = queries.shape[1]
+        N = B * K
+        keypoints = sample_keypoints(params, self.layout_for(params)).reshape(N, N_KEYPOINTS, 3)
+        enc = self.encode(keypoints)
+        q = queries[:, None].expand(B, K, Q, 3).reshape(N, Q, 3)
+        rows, cols, nbr = self.neighbours(q.detach(), enc)
+        out = torch.full((N * Q,), outside, dtype=params.dtype, device=params.device)
+        if rows.numel() == 0:
+            return out.reshape(B, K, Q) + 0.0 * params.sum()
+        table = enc["table"]
+        D = table.shape[-1]
+        g = table.reshape(N * N_KEYPOINTS, D).index_select(
+            0, (rows[:, None] * N_KEYPOINTS + nbr).reshape(-1)).reshape(-1, self.k, D)
+        qr = q.reshape(N * Q, 3).index_select(0, rows * Q + cols)  # (R, 3)
+        p_j, m_j, nu_j, beta_j = torch.split(g, [3, 9, D - 13, 1], dim=-1)
+        diff = qr[:, None, :] - p_j  # (R, k, 3)
+        o = (m_j.reshape(-1, self.k, 3, 3) * diff[..., None, :]).sum(-1)
+        o_hat, rho = _squash(o)
+        geo = torch.cat([o_hat, rho], dim=-1)  # (R, k, 4)
+        e = torch.cat([geo, nu_j], dim=-1)  # (R, k, 4 + value)
+        att = torch.softmax(beta_j + self.score(geo), dim=1)  # (R, k, 1)
+        pooled = (att * e).sum(1)
+        logit = self.decoder(torch.cat([e.reshape(e.shape[0], -1), pooled], dim=-1))[:, 0]
+        out = out.index_put((rows * Q + cols,), logit)
+        return out.reshape(B, K, Q)
+
+    def forward(self, params: torch.Tensor, queries: torch.Tensor) -> torch.Tensor:
+        """params (B, K, P), queries (B, Q, 3) -> occupancy (B, K, Q) in [0, 1]."""
+        return torch.sigmoid(self.forward_logits(params, queries))
+
+
+# ----------------------------------------------------------------------------------------
+# Loading
+# ----------------------------------------------------------------------------------------
+
+
+def build_neural(config: dict[str, Any]) -> NeuralSweeper:
+    """A NeuralSweeper with the architecture hyper-parameters of `config`."""
+    keys = ("latent", "value", "hidden")
+    return NeuralSweeper(**{k: int(config[k]) for k in keys if k in config})
+
+
+def load_neural(path: str | Path = NEURAL_WEIGHTS) -> NeuralSweeper:
+    """The NeuralSweeper saved at `path` (a dict with 'config' and 'state_dict'), frozen."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no neural sweeper weights at {path}; train them with "
+                                "sweepedit.fitting.train_sweeper.train_sweeper")
+    blob = torch.load(path, map_location="cpu", weights_only=True)
+    net = build_neural(blob["config"])
+    net.load_state_dict({k: v.float() for k, v in blob["state_dict"].items()})
+    net.eval()
+    for p in net.parameters():
+        p.requires_grad_(False)
+    return net
+
+
+def load_sweeper(kind: str = "analytic", weights: str | Path | None = None,
+                 **kwargs: Any) -> Sweeper:
+    """The default-configured sweeper of a kind: 'analytic' or 'neural'.
+
+    weights: for 'neural', the weights file (default resources/sweeper_neural.pt).
+    kwargs: passed to AnalyticSweeper (e.g. sharpness, stations).
+    """
+    if kind == "analytic":
+        return AnalyticSweeper(**kwargs)
+    if kind == "neural":
+        return load_neural(weights if weights is not None else NEURAL_WEIGHTS)
+    raise ValueError(f"unknown sweeper kind {kind!r}; expected 'analytic' or 'neural'")

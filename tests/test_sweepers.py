@@ -1,0 +1,182 @@
+"""The differentiable sweepers against independent truths.
+
+Truths: a straight cylinder and a box-like superellipse whose insides are known in closed
+form, the exact inside test of sweepedit.geometry.inside (its own root finding),
+torch.autograd.gradcheck (finite differences), and shape/range contracts.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import torch
+
+from sweepedit.fitting.evaluate_sweeper import evaluation_sweeps, sweeper_accuracy
+from sweepedit.fitting.keypoints import sample_keypoints
+from sweepedit.fitting.params import DEFAULT_LAYOUT
+from sweepedit.fitting.sweepers import (
+    NEURAL_WEIGHTS,
+    AnalyticSweeper,
+    NeuralSweeper,
+    Sweeper,
+    build_neural,
+    load_sweeper,
+)
+from sweepedit.geometry.inside import grid_points, inside_primitive
+from sweepedit.geometry.model import SweepPrimitive
+
+
+def _params(cps, a, b, d, s=(0.0, 0.0), dtype=torch.float32) -> torch.Tensor:
+    return torch.tensor(np.concatenate([np.asarray(cps, float).reshape(-1), [a, b, d], s]),
+                        dtype=dtype)
+
+
+def _edge_cases() -> torch.Tensor:
+    """Primitives at the corners of the ranges and with awkward axes, (E, 14)."""
+    return torch.stack([
+        _params([[-0.4, 0, 0], [0, 0.3, 0], [0.4, 0, 0]], 0.01, 0.01, 0.3, (0.5, -0.5)),
+        _params([[-0.4, 0, 0], [0, 0.3, 0], [0.4, 0, 0]], 0.5, 0.5, 5.0, (-0.5, 0.45)),
+        _params([[0, 0, -0.4], [0, 0, 0], [0, 0, 0.4]], 0.01, 0.5, 0.7),  # straight along z
+        _params([[0, 0, -0.4], [0, 1e-7, 0], [0, 0, 0.4]], 0.2, 0.01, 1.0),  # nearly straight
+        _params([[-0.3, 0, 0], [0.4, 0.01, 0], [-0.3, 0.02, 0]], 0.05, 0.05, 2.0),  # folded
+        _params([[0.1, 0.1, 0.1], [0.1, 0.1, 0.1], [0.3, 0.2, 0.1]], 0.1, 0.1, 2.0),  # c1 = c2
+        _params([[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5], [-0.5, 0.5, -0.5]], 0.3, 0.02, 4.0),
+    ])
+
+
+def _near_queries(params: torch.Tensor, n: int, seed: int) -> torch.Tensor:
+    """(n, 3) points near the surfaces of params (K, 14): jittered key points."""
+    gen = torch.Generator().manual_seed(seed)
+    kp = sample_keypoints(params.double()).reshape(-1, 3)
+    idx = torch.randint(0, kp.shape[0], (n,), generator=gen)
+    return (kp[idx] + 0.01 * torch.randn(n, 3, generator=gen, dtype=kp.dtype)).float()
+
+
+@pytest.fixture(scope="module")
+def neural() -> NeuralSweeper:
+    return load_sweeper("neural")  # type: ignore[return-value]
+
+
+# -- contracts ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", ["analytic", "neural"])
+def test_shape_and_range_contract(kind):
+    sweeper = load_sweeper(kind)
+    assert isinstance(sweeper, Sweeper)
+    params = DEFAULT_LAYOUT.from_unconstrained(torch.randn(2, 3, 14))
+    queries = torch.rand(2, 300, 3) - 0.5
+    occ = sweeper(params, queries)
+    assert occ.shape == (2, 3, 300)
+    assert occ.min() >= 0.0 and occ.max() <= 1.0
+    # Each batch item only sees its own primitives: swapping the batch swaps the output.
+    swapped = sweeper(params.flip(0), queries.flip(0))
+    assert torch.allclose(swapped, occ.flip(0), atol=1e-5)
+    with pytest.raises(ValueError):
+        sweeper(params, queries[:1])
+    with pytest.raises(ValueError):
+        sweeper(params[0], queries[0])
+
+
+def test_load_sweeper_kinds():
+    assert isinstance(load_sweeper("analytic"), AnalyticSweeper)
+    net = load_sweeper("neural")
+    assert isinstance(net, NeuralSweeper)
+    assert not any(p.requires_grad for p in net.parameters())
+    assert NEURAL_WEIGHTS.exists() and NEURAL_WEIGHTS.stat().st_size < 5 * 2**20
+    with pytest.raises(ValueError):
+        load_sweeper("exact")
+
+
+@pytest.mark.parametrize("kind", ["analytic", "neural"])
+def test_cylinder_and_box_in_closed_form(kind):
+    """A straight cylinder (d = 2) and a near-box (d = 5) along z, tested far from the rim."""
+    sweeper = load_sweeper(kind)
+    gen = torch.Generator().manual_seed(0)
+    q = torch.rand(1, 4000, 3, generator=gen) - 0.5
+    cyl = _params([[0, 0, -0.3], [0, 0, 0], [0, 0, 0.3]], 0.2, 0.2, 2.0)
+    box = _params([[0, 0, -0.3], [0, 0, 0], [0, 0, 0.3]], 0.25, 0.1, 5.0)
+    occ = sweeper(torch.stack([cyl, box])[None], q)[0] > 0.5
+    x, y, z = q[0].unbind(-1)
+    r = torch.sqrt(x * x + y * y)
+    cyl_in, cyl_out = (r < 0.18) & (z.abs() < 0.28), (r > 0.22) | (z.abs() > 0.32)
+    # The frame's U axis of a tangent along z is world y (DESIGN.md initial frame), so a
+    # runs along y and b along x here: check with the superellipse in those coordinates.
+    lvl = (y.abs() / 0.25) ** 5 + (x.abs() / 0.1) ** 5
+    box_in, box_out = (lvl < 0.7) & (z.abs() < 0.28), (lvl > 1.4) | (z.abs() > 0.32)
+    for pred, inside, outside in ((occ[0], cyl_in, cyl_out), (occ[1], box_in, box_out)):
+        assert inside.sum() > 100 and outside.sum() > 100
+        assert pred[inside].float().mean() > 0.98
+        assert (~pred[outside]).float().mean() > 0.98
+
+
+# -- gradients ---------------------------------------------------------------------------
+
+
+def test_analytic_gradcheck_float64():
+    sweeper = AnalyticSweeper(sharpness=30.0, stations=16)
+    p = _params([[-0.3, 0.1, 0.0], [0.0, 0.3, 0.2], [0.3, -0.1, 0.1]], 0.15, 0.1, 2.6,
+                (0.2, -0.3), dtype=torch.float64)[None, None].requires_grad_(True)
+    q = _near_queries(p[0].detach(), 8, seed=1).double()[None].requires_grad_(True)
+    assert torch.autograd.gradcheck(sweeper, (p, q), eps=1e-6, atol=1e-5)
+
+
+@pytest.mark.parametrize("kind", ["analytic", "neural"])
+def test_gradients_finite_across_the_ranges(kind):
+    sweeper = load_sweeper(kind)
+    gen = torch.Generator().manual_seed(2)
+    unit = torch.rand(24, 14, generator=gen)
+    unit[:6, 9:12] = 0.0  # a = b = 0.01, d = 0.3
+    unit[6:12, 11] = 1.0  # d = 5
+    params = torch.cat([DEFAULT_LAYOUT.from_unit(unit), _edge_cases()])
+    queries = torch.cat([_near_queries(params, 600, seed=3), torch.rand(200, 3) - 0.5])
+    params = params[None].clone().requires_grad_(True)
+    queries = queries[None].clone().requires_grad_(True)
+    occ = sweeper(params, queries)
+    assert torch.isfinite(occ).all()
+    (occ * torch.rand_like(occ)).sum().backward()
+    assert torch.isfinite(params.grad).all() and torch.isfinite(queries.grad).all()
+    assert (params.grad.abs().sum(dim=(0, 2)) > 0).all()  # every primitive gets a gradient
+
+
+# -- accuracy ----------------------------------------------------------------------------
+
+
+def _soft_and_hard_iou(sweeper, params, points, truth):
+    with torch.no_grad():
+        occ = sweeper(params[None], torch.tensor(points, dtype=torch.float32)[None])[0].numpy()
+    soft = np.minimum(occ, truth).sum() / np.maximum(occ, truth).sum()
+    hard, inside = occ > 0.5, truth > 0.5
+    return soft, (hard & inside).sum() / (hard | inside).sum()
+
+
+def test_analytic_converges_to_the_exact_test():
+    params = evaluation_sweeps(4, seed=11)
+    rng = np.random.default_rng(0)
+    grid = grid_points(24)
+    kp = sample_keypoints(params.double()).numpy()
+    near = (kp[:, ::3] + rng.normal(scale=0.01, size=kp[:, ::3].shape)).reshape(-1, 3)
+    points = np.concatenate([grid, near])
+    truth = np.stack([inside_primitive(points, SweepPrimitive(
+        p[:9].reshape(3, 3), a=p[9], b=p[10], degree=p[11], scaling=tuple(p[12:])))
+        for p in params.double().numpy()]).astype(float)
+    softs, hards = [], []
+    for sharpness in (25.0, 100.0, 400.0, 2000.0):
+        soft, hard = _soft_and_hard_iou(AnalyticSweeper(sharpness=sharpness, stations=64),
+                                        params, points, truth)
+        softs.append(soft)
+        hards.append(hard)
+    assert all(b > a for a, b in itertools.pairwise(softs)), softs
+    assert softs[-1] > 0.97 and hards[-1] > 0.97, (softs, hards)
+
+
+def test_shipped_neural_weights_are_accurate(neural):
+    """Fresh random sweeps: the trained network clearly passes, an untrained one fails."""
+    kwargs = {"seed": 123, "resolution": 24, "near_points": 1024}
+    trained = sweeper_accuracy(neural, n_sweeps=10, **kwargs)
+    assert trained["iou_mean"] >= 0.9, trained
+    torch.manual_seed(0)
+    untrained = sweeper_accuracy(build_neural(neural.config), n_sweeps=4, **kwargs)
+    assert untrained["iou_mean"] < 0.5, untrained
