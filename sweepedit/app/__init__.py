@@ -1,0 +1,1 @@
+"""Qt + PyVista editor: window, scene, panels, background worker, undo commands."""

@@ -1,0 +1,226 @@
+"""The document being edited: an Abstraction, its target Shape, file paths, a dirty flag.
+
+Plain data with change notifications and no Qt, so that it (and the command stack that
+edits it) can be unit-tested without a display. Views connect to its `Signal`s; only
+commands (sweepedit.app.commands) should call the mutators, so that every edit can be
+undone.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sweepedit.geometry.model import Abstraction, SweepPrimitive, palette_color
+
+# What changed in a primitive (the second argument of Document.primitive_changed).
+GEOMETRY = "geometry"  # control points, profile or scaling: re-sweep
+DISPLAY = "display"  # colour, visibility, lock: no re-sweep
+META = "meta"  # name and other labels
+
+GEOMETRY_FIELDS = frozenset({"a", "b", "degree", "scaling"})
+DISPLAY_FIELDS = frozenset({"color", "visible", "locked"})
+META_FIELDS = frozenset({"name"})
+EDITABLE_FIELDS = GEOMETRY_FIELDS | DISPLAY_FIELDS | META_FIELDS
+
+
+class Signal:
+    """A minimal Qt-free signal: connect callables, emit calls them in order."""
+
+    def __init__(self) -> None:
+        self._slots: list[Callable[..., Any]] = []
+
+    def connect(self, slot: Callable[..., Any]) -> None:
+        if slot not in self._slots:
+            self._slots.append(slot)
+
+    def disconnect(self, slot: Callable[..., Any]) -> None:
+        if slot in self._slots:
+            self._slots.remove(slot)
+
+    def emit(self, *args: Any) -> None:
+        # A copy, so that a slot may disconnect itself while the signal is emitted.
+        for slot in list(self._slots):
+            slot(*args)
+
+
+def field_kind(name: str) -> str:
+    """GEOMETRY, DISPLAY or META for an editable primitive field."""
+    if name in GEOMETRY_FIELDS:
+        return GEOMETRY
+    if name in DISPLAY_FIELDS:
+        return DISPLAY
+    if name in META_FIELDS:
+        return META
+    raise KeyError(f"'{name}' is not an editable primitive field")
+
+
+def ensure_distinct_colors(primitives: Sequence[SweepPrimitive]) -> None:
+    """Give primitives palette colours when they all share one (files without colours,
+    fit results); a deliberate choice of the user (distinct colours) is left alone."""
+    if len(primitives) > 1 and len({p.color.lower() for p in primitives}) == 1:
+        for i, p in enumerate(primitives):
+            p.color = palette_color(i)
+    for i, p in enumerate(primitives):
+        if not p.name:
+            p.name = f"primitive {i + 1}"
+
+
+class Document:
+    """The abstraction being edited and everything the views need to show it.
+
+    Signals:
+      primitive_changed(index, kind): one primitive changed; kind is GEOMETRY, DISPLAY or META
+      primitives_reset(): primitives added, removed or replaced (indices may have moved)
+      selection_changed(index | None)
+      shape_changed(): target shape loaded or cleared
+      path_changed(): parameter or shape file path changed
+      dirty_changed(bool)
+      edited(): after any change of the primitives (for metrics)
+    """
+
+    def __init__(self, abstraction: Abstraction | None = None) -> None:
+        self.abstraction: Abstraction = abstraction if abstraction is not None else Abstraction()
+        self.shape: Any | None = None  # sweepedit.io.shapes.Shape
+        self.shape_path: Path | None = None
+        self.path: Path | None = None  # the parameter file, once opened or saved
+        self.dirty = False
+        self.selection: int | None = None
+        self.primitive_changed = Signal()
+        self.primitives_reset = Signal()
+        self.selection_changed = Signal()
+        self.shape_changed = Signal()
+        self.path_changed = Signal()
+        self.dirty_changed = Signal()
+        self.edited = Signal()
+
+    # -- reading -------------------------------------------------------------------------
+    @property
+    def primitives(self) -> list[SweepPrimitive]:
+        return self.abstraction.primitives
+
+    def __len__(self) -> int:
+        return len(self.abstraction.primitives)
+
+    def primitive(self, index: int) -> SweepPrimitive:
+        return self.abstraction.primitives[index]
+
+    @property
+    def selected(self) -> SweepPrimitive | None:
+        if self.selection is None:
+            return None
+        return self.abstraction.primitives[self.selection]
+
+    def display_name(self) -> str:
+        """A title for the window: the parameter file, else the shape, else 'untitled'."""
+        if self.path is not None:
+            return self.path.name
+        if self.shape_path is not None:
+            return self.shape_path.name
+        return "untitled"
+
+    # -- whole-document changes (not undoable: opening files) ----------------------------
+    def set_abstraction(self, abstraction: Abstraction, path: str | Path | None = None) -> None:
+        """Replace everything edited (after opening a parameter file or starting anew)."""
+        ensure_distinct_colors(abstraction.primitives)
+        self.abstraction = abstraction
+        self.path = Path(path) if path is not None else None
+        self.selection = None
+        self.primitives_reset.emit()
+        self.selection_changed.emit(None)
+        self.path_changed.emit()
+        self.set_dirty(False)
+        self.edited.emit()
+
+    def set_shape(self, shape: Any | None, path: str | Path | None = None) -> None:
+        """Set the target shape; primitives of an empty document adopt its normalisation."""
+        self.shape = shape
+        self.shape_path = Path(path) if path is not None else None
+        normalization = getattr(shape, "normalization", None)
+        if shape is not None and normalization is not None and not self.primitives:
+            self.abstraction.normalization = normalization
+        if shape is not None and path is not None and self.abstraction.source is None:
+            self.abstraction.source = {"path": str(path)}
+        self.shape_changed.emit()
+        self.path_changed.emit()
+        self.edited.emit()
+
+    def set_path(self, path: str | Path | None) -> None:
+        self.path = Path(path) if path is not None else None
+        self.path_changed.emit()
+
+    def set_dirty(self, dirty: bool) -> None:
+        if dirty != self.dirty:
+            self.dirty = dirty
+            self.dirty_changed.emit(dirty)
+
+    def select(self, index: int | None) -> None:
+        if index is not None and not 0 <= index < len(self):
+            index = None
+        if index != self.selection:
+            self.selection = index
+            self.selection_changed.emit(index)
+
+    # -- mutators used by commands --------------------------------------------------------
+    def set_control_points(self, index: int, control_points: np.ndarray) -> None:
+        """Replace one primitive's control points by a copy of `control_points` (n, 3)."""
+        self.abstraction.primitives[index].control_points = np.array(
+            control_points, dtype=np.float64, copy=True)
+        self.primitive_changed.emit(index, GEOMETRY)
+        self.edited.emit()
+
+    def set_fields(self, index: int, values: dict[str, Any]) -> None:
+        """Set editable fields (a, b, degree, scaling, name, color, visible, locked)."""
+        prim = self.abstraction.primitives[index]
+        kinds = set()
+        for name, value in values.items():
+            kinds.add(field_kind(name))
+            if name == "scaling":
+                value = tuple(float(s) for s in value)
+            elif name in ("a", "b", "degree"):
+                value = float(value)
+            elif name in ("visible", "locked"):
+                value = bool(value)
+            setattr(prim, name, value)
+        # One notification per kind, the most demanding first (a re-sweep redraws all).
+        for kind in (GEOMETRY, DISPLAY, META):
+            if kind in kinds:
+                self.primitive_changed.emit(index, kind)
+        self.edited.emit()
+
+    def insert_primitive(self, index: int, primitive: SweepPrimitive) -> None:
+        self.abstraction.primitives.insert(index, primitive)
+        if self.selection is not None and self.selection >= index:
+            self.selection += 1
+        self.primitives_reset.emit()
+        self.edited.emit()
+
+    def remove_primitive(self, index: int) -> SweepPrimitive:
+        prim = self.abstraction.primitives.pop(index)
+        old = self.selection
+        if self.selection is not None:
+            if self.selection == index:
+                self.selection = None
+            elif self.selection > index:
+                self.selection -= 1
+        self.primitives_reset.emit()
+        if old != self.selection:
+            self.selection_changed.emit(self.selection)
+        self.edited.emit()
+        return prim
+
+    def replace_primitives(self, primitives: Iterable[SweepPrimitive],
+                           fit: dict[str, Any] | None = None) -> None:
+        """Replace all primitives (and the fit record) at once."""
+        self.abstraction.primitives = list(primitives)
+        self.abstraction.fit = fit
+        old = self.selection
+        if self.selection is not None and self.selection >= len(self):
+            self.selection = None
+        self.primitives_reset.emit()
+        if old != self.selection:
+            self.selection_changed.emit(self.selection)
+        self.edited.emit()

@@ -1,0 +1,786 @@
+"""The main window: menus, toolbar, the 3D view, side panels, status bar with live metrics,
+background fitting, and file handling (open, save, export, drag-and-drop, recent files).
+
+Errors reach the user through `report_error` and questions through `ask_save_changes`;
+tests replace these two methods so that no modal dialog ever blocks them.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import pyvista as pv
+from PySide6.QtCore import QBuffer, QByteArray, QEventLoop, QIODevice, QSettings, Qt, QTimer
+from PySide6.QtGui import (
+    QAction,
+    QCloseEvent,
+    QDragEnterEvent,
+    QDropEvent,
+    QImage,
+    QKeySequence,
+)
+from PySide6.QtWidgets import (
+    QApplication,
+    QCheckBox,
+    QDockWidget,
+    QFileDialog,
+    QLabel,
+    QMainWindow,
+    QMessageBox,
+    QScrollArea,
+    QSlider,
+    QWidget,
+)
+
+from sweepedit.app.commands import (
+    AddPrimitive,
+    CommandStack,
+    DeletePrimitive,
+    apply_fit,
+    duplicate_primitive,
+    new_primitive,
+)
+from sweepedit.app.document import Document
+from sweepedit.app.panels import FitPanel, PrimitiveListPanel, PropertiesPanel
+from sweepedit.app.scene import SceneMouse, SweepScene
+from sweepedit.app.worker import FitThread, MetricsRunner, load_fit_api, make_settings, with_locked
+from sweepedit.errors import SweepeditError
+
+APP_NAME = "SweepEdit"
+PARAM_EXTENSIONS = (".json", ".txt")
+SHAPE_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".binvox", ".npy", ".npz",
+                    ".xyz", ".pts")
+MESH_EXPORT_TYPES = {"OBJ (*.obj)": "obj", "PLY (*.ply)": "ply", "STL (*.stl)": "stl",
+                     "GLB (*.glb)": "glb"}
+MAX_RECENT = 10
+MULTI_SAMPLES = 0  # anti-aliasing: FXAA, and only on a GPU (see _check_antialiasing)
+SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "swiftshader", "software rasterizer")
+
+HELP_TEXT = """<b>Mouse</b><br>
+Left-drag: rotate · Shift+left-drag or middle-drag: pan · wheel / right-drag: zoom<br>
+Click a primitive to select it; drag its white handles to move its axis control points
+(in the view plane).<br><br>
+<b>Keys</b><br>
+Ctrl+O open shape · Ctrl+Shift+O open parameters · Ctrl+S save · Ctrl+Shift+S save as<br>
+Ctrl+Z undo · Ctrl+Shift+Z / Ctrl+Y redo · Ctrl+Shift+N add · Ctrl+D duplicate ·
+Delete delete<br>
+F fit view · T show/hide the target shape · Enter in the transform section applies it"""
+
+
+def _png_bytes(image: QImage) -> bytes:
+    data = QByteArray()
+    buffer = QBuffer(data)
+    buffer.open(QIODevice.OpenModeFlag.WriteOnly)
+    image.save(buffer, "PNG")
+    buffer.close()
+    return bytes(data.data())
+
+
+def is_parameter_file(path: str | Path) -> bool:
+    """Parameters (.json, official .txt) rather than a shape. A .txt may also be a point
+    cloud: official rows hold 14+ numbers, point rows 3 (or 6 with normals)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".txt":
+        try:
+            with path.open("r", encoding="utf-8", errors="replace") as f:
+                for line in f:
+                    tokens = line.replace(",", " ").split()
+                    if tokens and not line.lstrip().startswith("#"):
+                        return len(tokens) > 6
+        except OSError:
+            return True  # let the parameter reader report it
+        return True
+    return suffix in PARAM_EXTENSIONS
+
+
+class MainWindow(QMainWindow):
+    """SweepEdit's main window. `settings` defaults to the user's QSettings (recent files)."""
+
+    def __init__(self, settings: QSettings | None = None, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        from pyvistaqt import QtInteractor  # heavy import, only when a window is made
+
+        self.settings = settings if settings is not None else QSettings("sweepedit", "sweepedit")
+        self.doc = Document()
+        self.stack = CommandStack(self.doc)
+        # One headlight instead of pyvista's five-light kit: lighting is per fragment and
+        # software GL (no GPU) pays for every light on every pixel.
+        self.plotter = QtInteractor(self, auto_update=False, multi_samples=MULTI_SAMPLES,
+                                    lighting="none")
+        self.plotter.add_light(pv.Light(light_type="headlight", intensity=1.0))
+        self._antialiasing_checked = False
+        self.plotter.setAcceptDrops(False)  # drops go to the window (pyvistaqt would add meshes)
+        self.setCentralWidget(self.plotter)
+        self.plotter.add_axes(interactive=False, line_width=2)
+        self.scene = SweepScene(self.plotter, self.doc, self.stack)
+        self.mouse = SceneMouse(self.scene, self.plotter)
+
+        self._fit_thread: FitThread | None = None
+        self._fit_locked: list[Any] = []
+        self._fit_values: dict[str, Any] = {}
+        self._fit_started = 0.0
+        self.last_fit_result: Any = None
+        self.last_metrics: dict | None = None
+        self.last_cancel_timing: dict[str, float] = {}
+
+        self._make_actions()
+        self._make_menus()
+        self._make_toolbar()
+        self._make_docks()
+        self._make_status_bar()
+
+        self.metrics = MetricsRunner(self)
+        self.metrics.updated.connect(self._on_metrics)
+        self.metrics.failed.connect(self._on_metrics_failed)
+        self.metrics.busy.connect(self._on_metrics_busy)
+        self.doc.edited.connect(self._schedule_metrics)
+        self.doc.dirty_changed.connect(lambda _d: self._update_title())
+        self.doc.path_changed.connect(self._update_title)
+        self.doc.selection_changed.connect(lambda _i: self._update_actions())
+        self.doc.primitives_reset.connect(self._update_actions)
+        self.stack.changed.connect(self._update_actions)
+
+        self.setAcceptDrops(True)
+        self.resize(1500, 940)
+        self._update_title()
+        self._update_actions()
+        self._schedule_metrics()
+        self.statusBar().showMessage("Click a primitive to select it, drag its handles to edit; "
+                                     "Help ▸ Mouse and keys lists the controls.", 8000)
+
+    # -- construction ---------------------------------------------------------------------
+    def _action(self, text: str, slot: Any, shortcut: Any = None, tip: str = "") -> QAction:
+        action = QAction(text, self)
+        if shortcut is not None:
+            if isinstance(shortcut, list | tuple):
+                action.setShortcuts([QKeySequence(s) for s in shortcut])
+            else:
+                action.setShortcut(QKeySequence(shortcut))
+        if tip:
+            action.setStatusTip(tip)
+            action.setToolTip(tip)
+        action.triggered.connect(lambda _checked=False: slot())
+        self.addAction(action)  # shortcuts work wherever the focus is in the window
+        return action
+
+    def _make_actions(self) -> None:
+        A = self._action
+        self.act_open_shape = A("Open &shape…", self.open_shape_dialog,
+                                QKeySequence.StandardKey.Open,
+                                "Open a mesh, voxel grid or point cloud as the target shape")
+        self.act_open_params = A("Open &parameters…", self.open_params_dialog, "Ctrl+Shift+O",
+                                 "Open primitives (.json or official SweepNet .txt)")
+        self.act_save = A("&Save", self.save, QKeySequence.StandardKey.Save, "Save the primitives")
+        self.act_save_as = A("Save &As…", self.save_as, "Ctrl+Shift+S",
+                             "Save the primitives under a new name")
+        self.act_export_union = A("Export mesh (&union)…", lambda: self.export_mesh_dialog(False),
+                                  tip="Export the union of the visible primitives as one mesh")
+        self.act_export_parts = A("Export mesh (&per primitive)…",
+                                  lambda: self.export_mesh_dialog(True),
+                                  tip="Export each visible primitive as its own part")
+        self.act_export_txt = A("Export official &txt…", self.export_txt_dialog,
+                                tip="Write SweepNet's primitive_parameters.txt format")
+        self.act_screenshot = A("Save scree&nshot…", self.screenshot_dialog,
+                                tip="Save the 3D view as a PNG image")
+        self.act_quit = A("&Quit", self.close, QKeySequence.StandardKey.Quit)
+
+        self.act_undo = A("&Undo", self.stack.undo, QKeySequence.StandardKey.Undo)
+        self.act_redo = A("&Redo", self.stack.redo, ["Ctrl+Shift+Z", "Ctrl+Y"])
+        self.act_add = A("&Add primitive", self.add_primitive, "Ctrl+Shift+N",
+                         "Add a straight primitive at the origin")
+        self.act_duplicate = A("&Duplicate primitive", self.duplicate_primitive, "Ctrl+D",
+                               "Duplicate the selected primitive")
+        self.act_delete = A("De&lete primitive", self.delete_primitive,
+                            QKeySequence.StandardKey.Delete, "Delete the selected primitive")
+        self.act_add.setIconText("Add")
+        self.act_duplicate.setIconText("Duplicate")
+        self.act_delete.setIconText("Delete")
+
+        self.act_show_shape = A("Show target &shape", self.toggle_shape, "T",
+                                "Show or hide the target shape")
+        self.act_show_shape.setCheckable(True)
+        self.act_show_shape.setChecked(True)
+        self.act_reset_camera = A("&Fit view", self.scene.reset_camera, "F",
+                                  "Reset the camera to show everything")
+        self.act_help = A("&Mouse and keys", self.show_help, QKeySequence.StandardKey.HelpContents)
+
+    def _make_menus(self) -> None:
+        bar = self.menuBar()
+        file_menu = bar.addMenu("&File")
+        file_menu.addAction(self.act_open_shape)
+        file_menu.addAction(self.act_open_params)
+        self.recent_menu = file_menu.addMenu("Recent &files")
+        self.recent_menu.aboutToShow.connect(self._fill_recent_menu)
+        file_menu.addSeparator()
+        file_menu.addAction(self.act_save)
+        file_menu.addAction(self.act_save_as)
+        file_menu.addSeparator()
+        file_menu.addAction(self.act_export_union)
+        file_menu.addAction(self.act_export_parts)
+        file_menu.addAction(self.act_export_txt)
+        file_menu.addAction(self.act_screenshot)
+        file_menu.addSeparator()
+        file_menu.addAction(self.act_quit)
+        edit_menu = bar.addMenu("&Edit")
+        for a in (self.act_undo, self.act_redo, None, self.act_add, self.act_duplicate,
+                  self.act_delete):
+            edit_menu.addSeparator() if a is None else edit_menu.addAction(a)
+        view_menu = bar.addMenu("&View")
+        view_menu.addAction(self.act_show_shape)
+        view_menu.addAction(self.act_reset_camera)
+        self.view_menu = view_menu
+        help_menu = bar.addMenu("&Help")
+        help_menu.addAction(self.act_help)
+
+    def _make_toolbar(self) -> None:
+        tb = self.addToolBar("Main")
+        tb.setObjectName("main-toolbar")
+        tb.setMovable(False)
+        self.act_open_shape.setIconText("Open shape")
+        self.act_open_params.setIconText("Open params")
+        for a in (self.act_open_shape, self.act_open_params, self.act_save, None, self.act_undo,
+                  self.act_redo, None, self.act_add, self.act_duplicate, self.act_delete, None):
+            tb.addSeparator() if a is None else tb.addAction(a)
+        self.shape_check = QCheckBox("Target")
+        self.shape_check.setChecked(True)
+        self.shape_check.setToolTip("Show the target shape (T)")
+        self.shape_check.toggled.connect(self.set_shape_visible)
+        tb.addWidget(self.shape_check)
+        self.opacity_slider = QSlider(Qt.Orientation.Horizontal)
+        self.opacity_slider.setRange(0, 100)
+        self.opacity_slider.setValue(round(self.scene.shape_opacity * 100))
+        self.opacity_slider.setFixedWidth(110)
+        self.opacity_slider.setToolTip("Opacity of the target shape")
+        self.opacity_slider.valueChanged.connect(lambda v: self.scene.set_shape_opacity(v / 100))
+        tb.addWidget(QLabel(" opacity "))
+        tb.addWidget(self.opacity_slider)
+        tb.addSeparator()
+        tb.addAction(self.act_reset_camera)
+
+    def _make_docks(self) -> None:
+        report = self.show_status
+        self.list_panel = PrimitiveListPanel(
+            self.doc, self.stack, [self.act_add, self.act_duplicate, self.act_delete], report)
+        self.props_panel = PropertiesPanel(self.doc, self.stack, report)
+        self.fit_panel = FitPanel()
+        self.fit_panel.start_requested.connect(self.start_fit)
+        self.fit_panel.cancel_requested.connect(self.cancel_fit)
+
+        def dock(title: str, widget: QWidget, area: Qt.DockWidgetArea) -> QDockWidget:
+            d = QDockWidget(title, self)
+            d.setObjectName(title.lower())
+            d.setWidget(widget)
+            d.setFeatures(QDockWidget.DockWidgetFeature.DockWidgetMovable
+                          | QDockWidget.DockWidgetFeature.DockWidgetFloatable)
+            self.addDockWidget(area, d)
+            return d
+
+        left = Qt.DockWidgetArea.LeftDockWidgetArea
+        self.list_dock = dock("Primitives", self.list_panel, left)
+        self.fit_dock = dock("Fit", self.fit_panel, left)
+        scroll = QScrollArea()
+        scroll.setWidgetResizable(True)
+        scroll.setWidget(self.props_panel)
+        scroll.setMinimumWidth(self.props_panel.sizeHint().width() + 24)
+        self.props_dock = dock("Properties", scroll, Qt.DockWidgetArea.RightDockWidgetArea)
+        self.resizeDocks([self.list_dock, self.fit_dock], [330, 520], Qt.Orientation.Vertical)
+        self.resizeDocks([self.list_dock], [310], Qt.Orientation.Horizontal)
+
+    def _make_status_bar(self) -> None:
+        self.metrics_label = QLabel("")
+        self.metrics_label.setMinimumWidth(380)
+        self.metrics_label.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+        self.statusBar().addPermanentWidget(self.metrics_label)
+
+    def showEvent(self, event: Any) -> None:  # noqa: N802 (Qt API)
+        super().showEvent(event)
+        if not self._antialiasing_checked:
+            self._antialiasing_checked = True
+            QTimer.singleShot(0, self._check_antialiasing)
+
+    def _check_antialiasing(self) -> None:
+        """FXAA costs ~50 ms a frame on software GL (Xvfb, VMs) but nothing on a GPU."""
+        try:
+            caps = self.plotter.render_window.ReportCapabilities().lower()
+        except Exception:
+            return
+        if caps and not any(name in caps for name in SOFTWARE_GL):
+            self.plotter.enable_anti_aliasing("fxaa")
+            self.scene.request_render()
+
+    # -- user feedback (tests replace report_error and ask_save_changes) -------------------
+    def report_error(self, title: str, message: str) -> None:
+        """Show an error; the app goes on."""
+        QMessageBox.critical(self, title, message)
+
+    def ask_save_changes(self) -> str:
+        """'save', 'discard' or 'cancel' for unsaved changes."""
+        box = QMessageBox(QMessageBox.Icon.Warning, APP_NAME,
+                          f"Save changes to {self.doc.display_name()}?",
+                          QMessageBox.StandardButton.Save | QMessageBox.StandardButton.Discard
+                          | QMessageBox.StandardButton.Cancel, self)
+        box.setDefaultButton(QMessageBox.StandardButton.Save)
+        answer = box.exec()
+        return {QMessageBox.StandardButton.Save: "save",
+                QMessageBox.StandardButton.Discard: "discard"}.get(
+                    QMessageBox.StandardButton(answer), "cancel")
+
+    def show_status(self, message: str, timeout_ms: int = 6000) -> None:
+        self.statusBar().showMessage(message, timeout_ms)
+
+    def show_help(self) -> None:
+        QMessageBox.information(self, f"{APP_NAME}: mouse and keys", HELP_TEXT)
+
+    def _update_title(self) -> None:
+        parts = [self.doc.display_name()]
+        if self.doc.path is not None and self.doc.shape_path is not None:
+            parts = [self.doc.path.name, f"on {self.doc.shape_path.name}"]
+        self.setWindowTitle(f"{' '.join(parts)}[*] — {APP_NAME}")
+        self.setWindowModified(self.doc.dirty)
+
+    @property
+    def fitting(self) -> bool:
+        return self._fit_thread is not None
+
+    def _update_actions(self) -> None:
+        fitting = self.fitting
+        has_sel = self.doc.selection is not None
+        has_prims = len(self.doc) > 0
+        self.act_undo.setEnabled(self.stack.can_undo and not fitting)
+        self.act_redo.setEnabled(self.stack.can_redo and not fitting)
+        # The menu names the step; the toolbar button keeps its width ("Undo").
+        self.act_undo.setText(f"&Undo {self.stack.undo_text}".rstrip())
+        self.act_redo.setText(f"&Redo {self.stack.redo_text}".rstrip())
+        self.act_undo.setIconText("Undo")
+        self.act_redo.setIconText("Redo")
+        self.act_add.setEnabled(not fitting)
+        self.act_duplicate.setEnabled(has_sel and not fitting)
+        self.act_delete.setEnabled(has_sel and not fitting)
+        for a in (self.act_open_shape, self.act_open_params):
+            a.setEnabled(not fitting)
+        for a in (self.act_save, self.act_save_as, self.act_export_txt):
+            a.setEnabled(not fitting)
+        for a in (self.act_export_union, self.act_export_parts):
+            a.setEnabled(has_prims and not fitting)
+        self.list_panel.tree.setEnabled(not fitting)
+
+    # -- files ----------------------------------------------------------------------------
+    def open_path(self, path: str | Path) -> bool:
+        """Open a parameter file (.json, .txt) or a shape (anything else)."""
+        if is_parameter_file(path):
+            return self.open_params(path)
+        return self.open_shape(path)
+
+    def open_shape(self, path: str | Path) -> bool:
+        """Load `path` as the target shape; on failure report it and keep what was there."""
+        path = Path(path)
+        if self.fitting:
+            return False
+        # Loading voxelises and samples the shape (a second or two): say so meanwhile.
+        self.show_status(f"Loading {path.name}…", 0)
+        QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
+        QApplication.processEvents(QEventLoop.ProcessEventsFlag.ExcludeUserInputEvents)
+        try:
+            from sweepedit.io.shapes import load_shape
+
+            shape = load_shape(path)
+        except Exception as exc:  # any loader failure is the file's, not the app's
+            QApplication.restoreOverrideCursor()
+            self.statusBar().clearMessage()
+            self.report_error("Cannot open shape", _describe(exc, path))
+            return False
+        QApplication.restoreOverrideCursor()
+        self.doc.set_shape(shape, path)
+        self.scene.reset_camera()
+        self._add_recent(path)
+        self.show_status(f"Opened shape {path.name}")
+        return True
+
+    def open_params(self, path: str | Path, ask: bool = True) -> bool:
+        """Load primitives from `path`; the current ones are replaced (asks to save first)."""
+        path = Path(path)
+        if self.fitting or (ask and not self.maybe_save()):
+            return False
+        try:
+            from sweepedit.io.params import read_abstraction
+
+            abstraction = read_abstraction(path)
+        except Exception as exc:
+            self.report_error("Cannot open parameters", _describe(exc, path))
+            return False
+        shape_norm = getattr(self.doc.shape, "normalization", None)
+        if shape_norm is not None and path.suffix.lower() == ".txt":
+            abstraction.normalization = shape_norm  # the official format has no frame
+        if self.doc.shape_path is not None and abstraction.source is None:
+            abstraction.source = {"path": str(self.doc.shape_path)}
+        self.doc.set_abstraction(abstraction, path)
+        self.stack.clear()
+        self._add_recent(path)
+        self.show_status(f"Opened {len(abstraction)} primitives from {path.name}")
+        if self.doc.shape is None:
+            self._open_source_shape(path, abstraction.source)
+        if self.doc.shape is None:
+            self.scene.reset_camera()
+        return True
+
+    def _open_source_shape(self, params_path: Path, source: dict | None) -> None:
+        """Open the shape a parameter file was made from, when it can be found."""
+        if not source or not source.get("path"):
+            return
+        candidate = Path(str(source["path"]))
+        if not candidate.is_absolute():
+            candidate = params_path.parent / candidate
+        if candidate.is_file():
+            self.open_shape(candidate)
+
+    def maybe_save(self) -> bool:
+        """Before discarding the document: True to go on, False when the user cancels."""
+        if not self.doc.dirty:
+            return True
+        answer = self.ask_save_changes()
+        if answer == "save":
+            return self.save()
+        return answer == "discard"
+
+    def save(self) -> bool:
+        path = self.doc.path
+        if path is None or path.suffix.lower() != ".json":
+            return self.save_as()
+        return self.save_to(path)
+
+    def save_as(self) -> bool:
+        start = self.doc.path or self.doc.shape_path
+        suggestion = str(start.with_suffix(".json")) if start is not None else "primitives.json"
+        name, _ = QFileDialog.getSaveFileName(self, "Save primitives", suggestion,
+                                              "SweepEdit parameters (*.json)")
+        if not name:
+            return False
+        if Path(name).suffix.lower() != ".json":
+            name += ".json"
+        return self.save_to(name)
+
+    def save_to(self, path: str | Path) -> bool:
+        """Write the primitives to `path` (.json, or .txt for the official format)."""
+        path = Path(path)
+        try:
+            from sweepedit.io.params import write_abstraction
+
+            write_abstraction(self.doc.abstraction, path)
+        except Exception as exc:
+            self.report_error("Cannot save", _describe(exc, path))
+            return False
+        if path.suffix.lower() == ".json":
+            self.doc.set_path(path)
+            self.stack.set_clean()
+        self._add_recent(path)
+        self.show_status(f"Saved {path}")
+        return True
+
+    def export_txt_dialog(self) -> bool:
+        start = self.doc.path or self.doc.shape_path
+        suggestion = str(start.with_suffix(".txt")) if start else "primitive_parameters.txt"
+        name, _ = QFileDialog.getSaveFileName(self, "Export official SweepNet parameters",
+                                              suggestion, "SweepNet parameters (*.txt)")
+        if not name:
+            return False
+        if Path(name).suffix.lower() != ".txt":
+            name += ".txt"
+        return self.save_to(name)
+
+    def export_mesh_dialog(self, per_primitive: bool) -> bool:
+        start = self.doc.path or self.doc.shape_path
+        stem = start.stem if start is not None else "primitives"
+        name, chosen = QFileDialog.getSaveFileName(
+            self, "Export mesh", f"{stem}_{'parts' if per_primitive else 'union'}.obj",
+            ";;".join(MESH_EXPORT_TYPES))
+        if not name:
+            return False
+        if Path(name).suffix.lower().lstrip(".") not in MESH_EXPORT_TYPES.values():
+            name += "." + MESH_EXPORT_TYPES.get(chosen, "obj")
+        return self.export_mesh(name, per_primitive)
+
+    def export_mesh(self, path: str | Path, per_primitive: bool = False) -> bool:
+        """Export the visible primitives in the shape's original frame: their union as one
+        watertight mesh, or one file per primitive (STEM_00.EXT, ...)."""
+        path = Path(path)
+        try:
+            from sweepedit.io.mesh_export import export_abstraction
+
+            visible = self.doc.abstraction.copy()
+            visible.primitives = visible.visible()
+            written = export_abstraction(visible, path, per_primitive=per_primitive,
+                                         original_frame=True)
+        except Exception as exc:
+            self.report_error("Cannot export mesh", _describe(exc, path))
+            return False
+        self.show_status(f"Exported {len(written)} file(s): {', '.join(p.name for p in written)}")
+        return True
+
+    def screenshot_dialog(self) -> bool:
+        start = self.doc.path or self.doc.shape_path
+        suggestion = str(start.with_suffix(".png")) if start else "sweepedit.png"
+        name, _ = QFileDialog.getSaveFileName(self, "Save screenshot", suggestion, "PNG (*.png)")
+        if not name:
+            return False
+        return self.save_screenshot(name)
+
+    def view_image(self) -> QImage:
+        """The 3D view as rendered now."""
+        self.scene.render_now()
+        return self.plotter.grabFramebuffer()
+
+    def save_screenshot(self, path: str | Path, full_window: bool = False) -> bool:
+        """Write the 3D view (or the whole window) as a PNG, atomically."""
+        path = Path(path)
+        try:
+            self.scene.render_now()
+            image = self.grab().toImage() if full_window else self.view_image()
+            from sweepedit.io.params import atomic_write_bytes
+
+            atomic_write_bytes(path, _png_bytes(image))
+        except Exception as exc:
+            self.report_error("Cannot save screenshot", _describe(exc, path))
+            return False
+        self.show_status(f"Saved {path}")
+        return True
+
+    def open_shape_dialog(self) -> None:
+        patterns = " ".join(f"*{e}" for e in SHAPE_EXTENSIONS)
+        name, _ = QFileDialog.getOpenFileName(self, "Open shape", self._last_dir(),
+                                              f"Shapes ({patterns});;All files (*)")
+        if name:
+            self.open_shape(name)
+
+    def open_params_dialog(self) -> None:
+        name, _ = QFileDialog.getOpenFileName(
+            self, "Open parameters", self._last_dir(),
+            "Parameters (*.json *.txt);;SweepEdit (*.json);;SweepNet (*.txt);;All files (*)")
+        if name:
+            self.open_params(name)
+
+    def _last_dir(self) -> str:
+        recent = self.recent_files()
+        return str(Path(recent[0]).parent) if recent else ""
+
+    def recent_files(self) -> list[str]:
+        value = self.settings.value("recent_files", [])
+        if isinstance(value, str):
+            value = [value]
+        return [str(v) for v in (value or [])]
+
+    def _add_recent(self, path: Path) -> None:
+        p = str(Path(path).resolve())
+        recent = [r for r in self.recent_files() if r != p]
+        self.settings.setValue("recent_files", [p, *recent][:MAX_RECENT])
+
+    def _fill_recent_menu(self) -> None:
+        self.recent_menu.clear()
+        recent = self.recent_files()
+        if not recent:
+            self.recent_menu.addAction("(none)").setEnabled(False)
+            return
+        for p in recent:
+            a = self.recent_menu.addAction(p)
+            a.setEnabled(not self.fitting)
+            a.triggered.connect(lambda _c=False, p=p: self.open_path(p))
+        self.recent_menu.addSeparator()
+        self.recent_menu.addAction("Clear list").triggered.connect(
+            lambda: self.settings.setValue("recent_files", []))
+
+    # -- drag and drop --------------------------------------------------------------------
+    def dragEnterEvent(self, event: QDragEnterEvent) -> None:  # noqa: N802 (Qt API)
+        if any(u.isLocalFile() for u in event.mimeData().urls()):
+            event.acceptProposedAction()
+
+    def dropEvent(self, event: QDropEvent) -> None:  # noqa: N802 (Qt API)
+        paths = [Path(u.toLocalFile()) for u in event.mimeData().urls() if u.isLocalFile()]
+        event.acceptProposedAction()
+        # Shapes first, so that parameters dropped together with their shape get metrics.
+        for p in sorted(paths, key=is_parameter_file):
+            QTimer.singleShot(0, lambda p=p: self.open_path(p))
+
+    # -- editing --------------------------------------------------------------------------
+    def _push(self, command: Any) -> bool:
+        if self.fitting:
+            return False
+        try:
+            self.stack.push(command)
+        except SweepeditError as exc:
+            self.show_status(str(exc))
+            return False
+        return True
+
+    def add_primitive(self) -> None:
+        self._push(AddPrimitive(new_primitive(self.doc)))
+
+    def duplicate_primitive(self) -> None:
+        if self.doc.selection is not None:
+            self._push(duplicate_primitive(self.doc, self.doc.selection))
+
+    def delete_primitive(self) -> None:
+        if self.doc.selection is not None:
+            self._push(DeletePrimitive(self.doc.selection))
+
+    def toggle_shape(self) -> None:
+        self.set_shape_visible(self.act_show_shape.isChecked())
+
+    def set_shape_visible(self, visible: bool) -> None:
+        self.scene.set_shape_visible(visible)
+        for w in (self.act_show_shape, self.shape_check):
+            if w.isChecked() != visible:
+                w.blockSignals(True)
+                w.setChecked(visible)
+                w.blockSignals(False)
+
+    # -- metrics --------------------------------------------------------------------------
+    def _schedule_metrics(self) -> None:
+        if self.doc.shape is None:
+            self.metrics.cancel()
+            self.metrics_label.setText("Open a shape to see IoU / CD")
+            return
+        if not len(self.doc):
+            self.metrics.cancel()
+            self.metrics_label.setText("No primitives")
+            return
+        self.metrics.request(self.doc.abstraction, self.doc.shape)
+        self._on_metrics_busy(True)
+
+    def _on_metrics(self, result: dict) -> None:
+        self.last_metrics = result
+        f1 = result.get("f1_0.05")
+        nan = float("nan")
+        text = f"IoU {result.get('iou', nan):.3f}   CD-L1 {result.get('cd_l1', nan):.4f}"
+        if f1 is not None:
+            text += f"   F1@0.05 {f1:.3f}"
+        self.metrics_label.setText(text)
+        self.metrics_label.setToolTip(
+            "Against the target shape, with a reduced sample count for speed:\n"
+            + "\n".join(f"{k}: {v:.5g}" if isinstance(v, float) else f"{k}: {v}"
+                        for k, v in result.items()))
+
+    def _on_metrics_failed(self, message: str) -> None:
+        self.metrics_label.setText("Metrics unavailable")
+        self.metrics_label.setToolTip(message)
+
+    def _on_metrics_busy(self, busy: bool) -> None:
+        text = self.metrics_label.text().removesuffix("  …")
+        self.metrics_label.setText(text + ("  …" if busy else ""))
+
+    # -- fitting --------------------------------------------------------------------------
+    def start_fit(self, values: dict[str, Any]) -> bool:
+        """Start a background fit with the fit panel's values; False if it cannot start."""
+        if self.fitting:
+            return False
+        if self.doc.shape is None:
+            self.report_error("Cannot fit", "Open a shape first: the fit needs a target.")
+            return False
+        try:
+            fit_function, settings_type = load_fit_api()
+            settings = make_settings(settings_type, values)
+        except Exception as exc:
+            self.report_error("Cannot fit", f"Fitting is not available: {exc}")
+            return False
+        self._fit_values = dict(values)
+        self._fit_locked = [p.copy() for p in self.doc.primitives if p.locked]
+        self.stack.close_merge()
+        thread = FitThread(self.doc.shape, settings, self._fit_locked, fit_function, self)
+        thread.progress.connect(self._on_fit_progress)
+        thread.done.connect(self._on_fit_done)
+        thread.failed.connect(self._on_fit_failed)
+        thread.finished.connect(self._on_fit_thread_finished)
+        self._fit_thread = thread
+        self._fit_started = time.perf_counter()
+        self.fit_panel.begin(int(values.get("iterations", 0)))
+        self.props_panel.set_editable(False)
+        self._update_actions()
+        self.metrics.cancel()
+        thread.start()
+        return True
+
+    def cancel_fit(self) -> None:
+        """Stop the fit; its best result so far is applied when it returns."""
+        if self._fit_thread is not None:
+            self._fit_thread.cancel()
+            self.fit_panel.status.setText("Cancelling… (keeping the best result)")
+
+    def _on_fit_progress(self, iteration: int, total: int, batch: list, abstraction: Any) -> None:
+        if self._fit_thread is None:
+            return
+        self.fit_panel.show_progress(iteration, total, batch)
+        if abstraction is not None:
+            self.scene.show_preview(with_locked(abstraction, self._fit_locked))
+
+    def _on_fit_done(self, result: Any) -> None:
+        if self._fit_thread is None:  # the window closed meanwhile
+            return
+        self.last_fit_result = result
+        thread = self._fit_thread
+        cancelled = thread.cancel_event.is_set()
+        if cancelled and thread.cancel_requested_at and thread.returned_at:
+            self.last_cancel_timing = {"fit_returned_s": thread.returned_at
+                                       - thread.cancel_requested_at}
+        self.scene.end_preview()
+        prims = with_locked(result.abstraction, self._fit_locked)
+        seconds = float(getattr(result, "seconds", time.perf_counter() - self._fit_started))
+        record = dict(result.abstraction.fit or {})
+        record.update({k: v for k, v in self._fit_values.items() if k not in record})
+        record.setdefault("seconds", seconds)
+        record["cancelled"] = cancelled
+        self._finish_fit()
+        try:
+            self.stack.push(apply_fit(self.doc, prims, record))
+        except SweepeditError as exc:
+            self.report_error("Fit result rejected", str(exc))
+            self.fit_panel.finish("The fit returned invalid primitives.")
+            return
+        self.doc.select(None)
+        how = "Cancelled; kept the best result" if cancelled else "Done"
+        self.fit_panel.finish(f"{how}: {len(prims)} primitives in {seconds:.1f} s "
+                              "(Ctrl+Z undoes it)")
+
+    def _on_fit_failed(self, message: str) -> None:
+        if self._fit_thread is None:
+            return
+        self.scene.end_preview()
+        self._finish_fit()
+        self.fit_panel.finish("Fit failed.")
+        self.report_error("Fit failed", message)
+
+    def _finish_fit(self) -> None:
+        self._fit_thread = None
+        self.props_panel.set_editable(True)
+        self._update_actions()
+
+    def _on_fit_thread_finished(self) -> None:
+        sender = self.sender()
+        if isinstance(sender, FitThread):
+            sender.deleteLater()
+
+    # -- closing --------------------------------------------------------------------------
+    def closeEvent(self, event: QCloseEvent) -> None:  # noqa: N802 (Qt API)
+        if not self.maybe_save():
+            event.ignore()
+            return
+        thread = self._fit_thread
+        if thread is not None:
+            for signal in (thread.progress, thread.done, thread.failed):
+                signal.disconnect()
+            thread.cancel()
+            thread.wait(5000)
+            self._fit_thread = None
+        self.metrics.shutdown()
+        self.plotter.close()
+        event.accept()
+
+
+def _describe(exc: BaseException, path: Path) -> str:
+    """A message naming the file and the problem (FileFormatError already names the file)."""
+    message = str(exc) or type(exc).__name__
+    if str(path) not in message and path.name not in message:
+        message = f"{path}: {message}"
+    if not isinstance(exc, SweepeditError | OSError | ValueError):
+        message += f" ({type(exc).__name__})"
+    return message
