@@ -116,3 +116,18 @@ def test_help_for_every_subcommand() -> None:
 def test_missing_file_is_a_clear_error(capsys) -> None:
     assert run("export", "/nonexistent/p.json", "-o", "/tmp/x.obj") == 2
     assert "/nonexistent/p.json" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("sweeper", ["analytic", "neural"])
+def test_inside_with_soft_sweepers_agrees_with_exact(params_file: Path, tmp_path: Path,
+                                                     sweeper: str) -> None:
+    pts = np.random.default_rng(1).uniform(-0.5, 0.5, (4000, 3))
+    np.save(tmp_path / "pts.npy", pts)
+    out = tmp_path / f"{sweeper}.npy"
+    assert run("inside", params_file, tmp_path / "pts.npy", "-o", out, "--sweeper",
+               sweeper) == 0
+    soft = np.load(out)
+    assert soft.dtype == np.float32 and soft.min() >= 0.0 and soft.max() <= 1.0
+    exact = inside_union(pts, read_abstraction(params_file).primitives)
+    hard = soft > 0.5
+    assert (hard & exact).sum() / (hard | exact).sum() >= 0.9

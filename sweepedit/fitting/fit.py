@@ -301,8 +301,11 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
         if best_snap is None:
             continue
         prims = run.primitives(*best_snap, final=True)
-        score = _grid_iou(list(locked) + prims, target)
-        if best is None or score > best[0]:
+        # Restarts are compared by IoU on the fitting grid; a cancelled single run has
+        # nothing to compare and returns at once.
+        score = (_grid_iou(list(locked) + prims, target)
+                 if settings.restarts > 1 or not cancel.is_set() else math.nan)
+        if best is None or score > best[0] or math.isnan(best[0]):
             best = (score, prims, losses)
 
     if best is None:
@@ -314,6 +317,6 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     record: dict[str, Any] = {k: v for k, v in asdict(settings).items() if k != "weights"}
     record.update({"weights": asdict(settings.weights), "seconds": round(seconds, 3),
                    "cancelled": cancel.is_set(), "locked": len(locked),
-                   "grid_iou": round(iou, 6)})
+                   "grid_iou": None if math.isnan(iou) else round(iou, 6)})
     abstraction.fit = record
     return FitResult(abstraction, seconds, losses, iou, cancel.is_set())

@@ -19,9 +19,11 @@ Both reuse the shared sweep math of sweepedit.geometry.sweep; neither has a copy
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -34,6 +36,7 @@ from sweepedit.fitting.keypoints import (
     split_keypoints,
 )
 from sweepedit.fitting.params import DEFAULT_LAYOUT, ParamLayout
+from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import axis_frames, scaling_factor, superellipse_level
 
 RESOURCES = Path(__file__).resolve().parents[2] / "resources"
@@ -580,3 +583,37 @@ def load_sweeper(kind: str = "analytic", weights: str | Path | None = None,
     if kind == "neural":
         return load_neural(weights if weights is not None else NEURAL_WEIGHTS)
     raise ValueError(f"unknown sweeper kind {kind!r}; expected 'analytic' or 'neural'")
+
+
+def soft_union_occupancy(primitives: Sequence[SweepPrimitive], points: np.ndarray,
+                         kind: str = "analytic", chunk: int = 16384) -> np.ndarray:
+    """Soft occupancy of the union of primitives at points (N, 3) -> float32 (N,) in [0, 1].
+
+    Each primitive's occupancy comes from the chosen sweeper; the union is the Boltzmann
+    soft-max that fitting uses. Primitives of different layouts (control points, scaling
+    terms) are swept in separate groups.
+    """
+    from sweepedit.fitting.losses import boltzmann_union
+
+    points = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    if not primitives or not len(points):
+        return np.zeros(len(points), dtype=np.float32)
+    sweeper = load_sweeper(kind)
+    groups: dict[tuple[int, int], list[SweepPrimitive]] = {}
+    for p in primitives:
+        groups.setdefault((p.n_control_points, len(p.scaling)), []).append(p)
+    out = np.empty(len(points), dtype=np.float32)
+    with torch.no_grad():
+        batches = []
+        for (n, k), prims in groups.items():
+            layout = ParamLayout(n, k)
+            batches.append((layout, layout.from_primitives(prims)[None]))
+        for start in range(0, len(points), chunk):
+            q = torch.as_tensor(points[start:start + chunk])[None]
+            occupancy = []
+            for layout, params in batches:
+                sweeper.layout = layout
+                occupancy.append(sweeper(params, q))
+            occ = torch.cat(occupancy, dim=1)
+            out[start:start + chunk] = boltzmann_union(occ, torch.ones(occ.shape[:2]))[0].numpy()
+    return out
