@@ -64,14 +64,20 @@ def _rgb(color: str) -> tuple[float, float, float]:
     return c.redF(), c.greenF(), c.blueF()
 
 
-def _surface_actor(poly: pv.PolyData, color: str) -> vtk.vtkActor:
-    """An actor for a closed, outward-oriented surface: back faces are culled, which
-    halves the rasterisation on software GL and is invisible from outside."""
+def _mapped_actor(poly: pv.PolyData) -> vtk.vtkActor:
+    """A plain actor showing `poly` in its property's single colour."""
     mapper = vtk.vtkPolyDataMapper()
     mapper.SetInputData(poly)
     mapper.ScalarVisibilityOff()
     actor = vtk.vtkActor()
     actor.SetMapper(mapper)
+    return actor
+
+
+def _surface_actor(poly: pv.PolyData, color: str) -> vtk.vtkActor:
+    """An actor for a closed, outward-oriented surface: back faces are culled, which
+    halves the rasterisation on software GL and is invisible from outside."""
+    actor = _mapped_actor(poly)
     prop = actor.GetProperty()
     prop.SetInterpolationToPhong()
     prop.SetColor(*_rgb(color))
@@ -91,11 +97,7 @@ def _polyline(points: np.ndarray) -> pv.PolyData:
 
 
 def _line_actor(poly: pv.PolyData, color: str, width: float, opacity: float = 1.0) -> vtk.vtkActor:
-    mapper = vtk.vtkPolyDataMapper()
-    mapper.SetInputData(poly)
-    mapper.ScalarVisibilityOff()
-    actor = vtk.vtkActor()
-    actor.SetMapper(mapper)
+    actor = _mapped_actor(poly)
     prop = actor.GetProperty()
     prop.SetColor(*_rgb(color))
     prop.SetLineWidth(width)
