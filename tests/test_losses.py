@@ -91,8 +91,10 @@ def test_warm_start_one_primitive_per_branch_and_splits_to_fill() -> None:
     other = np.linspace([0, -0.3, 0], [0, 0.3, 0], 30)
     prims = warm_start_primitives([_Branch(line, 0.05), _Branch(other, 0.08)], k=2)
     assert len(prims) == 2
-    assert prims[0].a == pytest.approx(0.05, abs=1e-6)
-    np.testing.assert_allclose(prims[0].control_points[[0, -1]], line[[0, -1]], atol=1e-9)
+    # the thicker branch carries more volume and comes first
+    assert prims[0].a == pytest.approx(0.08, abs=1e-6)
+    assert prims[1].a == pytest.approx(0.05, abs=1e-6)
+    np.testing.assert_allclose(prims[1].control_points[[0, -1]], line[[0, -1]], atol=1e-9)
     for p in prims:
         p.validate()
     # four primitives asked from two branches: the longest pieces are split
