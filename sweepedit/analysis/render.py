@@ -3,14 +3,15 @@ and a contact sheet of many. Every PNG is written atomically (temporary file, re
 
 from __future__ import annotations
 
+import io
 import math
 import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from PIL import Image
 
 from sweepedit.analysis.skeleton import Skeleton
 from sweepedit.geometry.model import palette_color
@@ -189,15 +190,13 @@ def _auto_camera(plotter: Any, shape: Shape | None) -> None:
 
 
 def _screenshot(plotter: Any, path_png: str | Path) -> Path:
-    """Save the plotter's image to a temporary file beside `path_png`, then rename."""
+    """Save the plotter's image atomically (the shared temporary-file-and-rename writer)."""
+    from sweepedit.io.params import atomic_write_bytes
+
     path_png = Path(path_png)
     path_png.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path_png.stem}-", suffix=".png", dir=path_png.parent)
-    os.close(fd)
-    try:
-        plotter.screenshot(tmp)
-        os.replace(tmp, path_png)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    image = plotter.screenshot(None, return_img=True)  # (H, W, 3) uint8
+    buffer = io.BytesIO()
+    Image.fromarray(image).save(buffer, format="PNG")
+    atomic_write_bytes(path_png, buffer.getvalue())
     return path_png
