@@ -97,6 +97,11 @@ def test_warm_start_one_primitive_per_branch_and_splits_to_fill() -> None:
     np.testing.assert_allclose(prims[1].control_points[[0, -1]], line[[0, -1]], atol=1e-9)
     for p in prims:
         p.validate()
-    # four primitives asked from two branches: the longest pieces are split
+    # straight branches stay one sweep each even when more primitives are allowed
     prims = warm_start_primitives([_Branch(line, 0.05), _Branch(other, 0.08)], k=4)
-    assert len(prims) == 4
+    assert len(prims) == 2
+    # a branch that one quadratic axis cannot follow (an S) is split
+    t = np.linspace(0, 2 * np.pi, 80)
+    s_curve = np.stack([0.4 * t / t[-1] - 0.2, 0.15 * np.sin(t), np.zeros_like(t)], axis=1)
+    prims = warm_start_primitives([_Branch(s_curve, 0.02)], k=4)
+    assert 2 <= len(prims) <= 4

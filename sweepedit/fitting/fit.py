@@ -41,8 +41,10 @@ if TYPE_CHECKING:
 
 # Axis samples per primitive for the axis (Chamfer) loss.
 _AXIS_SAMPLES = 16
-# Selection logit of warm-started primitives (sigmoid ~ 0.88: on, but free to drop).
+# Selection logit of warm-started primitives (sigmoid ~ 0.88: on, but free to drop), and
+# of the spare ones beyond the skeleton's pieces (sigmoid ~ 0.12: off, free to join).
 _WARM_SELECTION_LOGIT = 2.0
+_SPARE_SELECTION_LOGIT = -2.0
 
 
 @dataclass
@@ -119,7 +121,8 @@ class _Run:
         skeleton = compute_skeleton(shape.occupancy)
         init = warm_start_primitives(skeleton.branches, K, settings.control_points,
                                      settings.scaling_degree)
-        init = _pad_primitives(init, K, self.rng, settings)
+        n_warm = len(init)
+        init = _pad_primitives(init, K, self.rng, settings, shape.occupancy)
         init_params = self.layout.from_primitives(init, dtype=torch.float32)
         # Different seeds start from slightly different places: jitter the warm start.
         if seed:
@@ -130,7 +133,8 @@ class _Run:
             settings.encoder == "auto" and shape.kind == "points")
         self.net = SweepNet(K, self.layout.size, point_input=point_input)
         self.net.warm_start(self.layout.to_unconstrained(init_params),
-                            torch.full((K,), _WARM_SELECTION_LOGIT))
+                            torch.tensor([_WARM_SELECTION_LOGIT] * n_warm
+                                         + [_SPARE_SELECTION_LOGIT] * (K - n_warm)))
         self.encoder_input = self._encoder_input(shape, point_input)
         if not settings.train_encoder:
             with torch.no_grad():
@@ -229,16 +233,20 @@ class _Run:
 
 
 def _pad_primitives(init: list[SweepPrimitive], k: int, rng: np.random.Generator,
-                    settings: FitSettings) -> list[SweepPrimitive]:
-    """Fill up to k primitives with small random ones when the skeleton gave too few."""
+                    settings: FitSettings, occupancy: np.ndarray) -> list[SweepPrimitive]:
+    """Fill up to k primitives with short spare ones inside the shape (at random occupied
+    cells, random directions, two cells thick) for the fit to switch on where needed."""
     out = list(init)
+    res = occupancy.shape[0]
+    cells = np.argwhere(occupancy)
     while len(out) < k:
-        centre = rng.uniform(-0.3, 0.3, 3)
+        centre = (cells[rng.integers(len(cells))] + 0.5) / res - 0.5
         direction = rng.normal(size=3)
         direction /= np.linalg.norm(direction)
-        cps = centre + np.linspace(-0.1, 0.1, settings.control_points)[:, None] * direction
-        out.append(SweepPrimitive(cps, a=0.05, b=0.05, degree=2.0,
-                                  scaling=(0.0,) * settings.scaling_degree,
+        half = 3.0 / res
+        cps = centre + np.linspace(-half, half, settings.control_points)[:, None] * direction
+        out.append(SweepPrimitive(np.clip(cps, -0.5, 0.5), a=2.0 / res, b=2.0 / res,
+                                  degree=2.0, scaling=(0.0,) * settings.scaling_degree,
                                   color=palette_color(len(out))))
     return out
 

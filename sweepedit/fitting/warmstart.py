@@ -91,10 +91,19 @@ def _extend_tips(points: np.ndarray, radii: np.ndarray, tips: tuple[bool, bool])
     return out
 
 
-def _pieces(branches: Sequence, k: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(points (M, 3), radii (M,)) pieces: the k longest branches, splitting the longest
-    ones while there are fewer than k. Closed loops are cut in three first, since one
-    quadratic axis cannot close on itself."""
+def axis_fit_error(points: np.ndarray, n_control_points: int) -> float:
+    """Largest distance from a polyline (M, 3) to the B-spline that fit_axis gives it."""
+    curve = axis_points(fit_axis(points, n_control_points)[None], np.linspace(0, 1, 200))[0]
+    d = np.linalg.norm(points[:, None, :] - curve[None, :, :], axis=-1)
+    return float(d.min(axis=1).max())
+
+
+def _pieces(branches: Sequence, k: int,
+            n_control_points: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(points (M, 3), radii (M,)) pieces: the k branches that carry the most volume, the
+    worst-fitting one split in two while there are fewer than k and one axis cannot follow
+    it to within half its radius (a straight handle stays one sweep). Closed loops are cut
+    in three first, since one quadratic axis cannot close on itself."""
     pieces: list[tuple[np.ndarray, np.ndarray]] = []
     for br in branches:
         pts, rad = np.asarray(br.points, float), np.asarray(br.radii, float)
@@ -113,10 +122,12 @@ def _pieces(branches: Sequence, k: int) -> list[tuple[np.ndarray, np.ndarray]]:
                                                               VOXEL) ** 2)
     pieces = pieces[:k]
     while 0 < len(pieces) < k:
-        longest = max(range(len(pieces)), key=lambda i: _arc_length(pieces[i][0])[-1])
-        pts, rad = pieces[longest]
-        if len(pts) < 2 * MIN_PIECE_POINTS:
+        excess = [axis_fit_error(p, n_control_points) - (0.5 * float(np.median(r)) + VOXEL)
+                  if len(p) >= 2 * MIN_PIECE_POINTS else -np.inf for p, r in pieces]
+        longest = int(np.argmax(excess))
+        if excess[longest] <= 0.0:
             break
+        pts, rad = pieces[longest]
         mid = len(pts) // 2
         # Overlap by one point so the halves meet.
         pieces[longest:longest + 1] = [(pts[:mid + 1], rad[:mid + 1]), (pts[mid:], rad[mid:])]
@@ -128,7 +139,7 @@ def warm_start_primitives(branches: Sequence, k: int, n_control_points: int = 3,
     """Up to k valid primitives from skeleton branches (objects with .points (M, 3) and
     .radii (M,); optional .start_kind / .end_kind ("tip" extends the end) and .is_loop)."""
     out: list[SweepPrimitive] = []
-    for pts, rad in _pieces(branches, k):
+    for pts, rad in _pieces(branches, k, n_control_points):
         cps = fit_axis(pts, n_control_points)
         if np.linalg.norm(cps[-1] - cps[0]) < 1e-4:  # a piece that collapsed to a point
             continue
