@@ -105,3 +105,7 @@ def test_warm_start_one_primitive_per_branch_and_splits_to_fill() -> None:
     s_curve = np.stack([0.4 * t / t[-1] - 0.2, 0.15 * np.sin(t), np.zeros_like(t)], axis=1)
     prims = warm_start_primitives([_Branch(s_curve, 0.02)], k=4)
     assert 2 <= len(prims) <= 4
+    # a parabolic arc is exactly one quadratic axis, so it is not split however bent
+    u = np.linspace(-1, 1, 60)
+    arc = np.stack([0.4 * u, 0.3 * u**2, np.zeros_like(u)], axis=1)
+    assert len(warm_start_primitives([_Branch(arc, 0.03)], k=4)) == 1

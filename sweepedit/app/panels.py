@@ -304,7 +304,7 @@ class PropertiesPanel(QWidget):
         self.cp_group = QGroupBox("Axis control points")
         self.cp_grid = QGridLayout(self.cp_group)
         self.cp_grid.setContentsMargins(6, 6, 6, 6)
-        self.cp_spins: list[list[QDoubleSpinBox]] = []
+        self.cp_widgets: list[list[SliderSpin]] = []  # [control point][x, y, z]
 
         self.profile_group = QGroupBox("Profile")
         pf = QFormLayout(self.profile_group)
@@ -379,22 +379,27 @@ class PropertiesPanel(QWidget):
 
     # -- building and refreshing ------------------------------------------------------------
     def _ensure_rows(self, n_points: int, n_scaling: int) -> None:
-        while len(self.cp_spins) < n_points:
-            row = len(self.cp_spins)
-            label = QLabel(f"c{row + 1}")
-            spins = [_spin(*CONTROL_POINT_RANGE, 4, 0.005) for _ in range(3)]
-            self.cp_grid.addWidget(label, row, 0)
-            for c, s in enumerate(spins):
-                s.setPrefix("xyz"[c] + " ")
-                s.valueChanged.connect(lambda _v, r=row: self._set_control_point(r))
-                s.editingFinished.connect(self.stack.close_merge)
-                self.cp_grid.addWidget(s, row, c + 1)
-            self.cp_spins.append(spins)
-        for row, spins in enumerate(self.cp_spins):
-            visible = row < n_points
-            self.cp_grid.itemAtPosition(row, 0).widget().setVisible(visible)
-            for s in spins:
-                s.setVisible(visible)
+        # One grid row per coordinate: "c1 x", "y", "z", "c2 x", ...
+        while len(self.cp_widgets) < n_points:
+            point = len(self.cp_widgets)
+            widgets = []
+            for c, axis in enumerate("xyz"):
+                w = SliderSpin(*CONTROL_POINT_RANGE, 4, 0.005)
+                w.value_changed.connect(
+                    lambda v, r=point, k=c: self._set_control_point(r, k, v))
+                w.editing_finished.connect(self.stack.close_merge)
+                w.setToolTip(f"{axis} of control point c{point + 1} (normalised frame)")
+                label = QLabel(f"c{point + 1}  {axis}" if c == 0 else axis)
+                label.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+                self.cp_grid.addWidget(label, 3 * point + c, 0)
+                self.cp_grid.addWidget(w, 3 * point + c, 1)
+                widgets.append(w)
+            self.cp_widgets.append(widgets)
+        for point, widgets in enumerate(self.cp_widgets):
+            visible = point < n_points
+            for c, w in enumerate(widgets):
+                self.cp_grid.itemAtPosition(3 * point + c, 0).widget().setVisible(visible)
+                w.setVisible(visible)
         while len(self.scaling_widgets) < n_scaling:
             k = len(self.scaling_widgets)
             w = SliderSpin(*SCALING_RANGE, 3, 0.01)
@@ -428,9 +433,7 @@ class PropertiesPanel(QWidget):
         self._ensure_rows(prim.n_control_points, len(prim.scaling))
         for row, point in enumerate(prim.control_points):
             for c in range(3):
-                s = self.cp_spins[row][c]
-                with QSignalBlocker(s):
-                    s.setValue(float(point[c]))
+                self.cp_widgets[row][c].set_value(float(point[c]))
         for name, w in self.field_widgets.items():
             w.set_value(getattr(prim, name))
         for k, value in enumerate(prim.scaling):
@@ -457,11 +460,14 @@ class PropertiesPanel(QWidget):
         if not self.editor.push(set_field(self.doc, i, "scaling", tuple(scaling))):
             self.refresh()
 
-    def _set_control_point(self, row: int) -> None:
+    def _set_control_point(self, row: int, coordinate: int, value: float) -> None:
+        """Move one coordinate; the other two keep the document's exact values (the spin
+        boxes show them rounded)."""
         i = self.doc.selection
         if i is None:
             return
-        position = [s.value() for s in self.cp_spins[row]]
+        position = self.doc.primitive(i).control_points[row].copy()
+        position[coordinate] = value
         if not self.editor.push(move_control_point(self.doc, i, row, position)):
             self.refresh()
 

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pyvista as pv
-from PySide6.QtCore import QBuffer, QByteArray, QEventLoop, QIODevice, QSettings, Qt, QTimer
+from PySide6.QtCore import QBuffer, QByteArray, QIODevice, QSettings, Qt, QTimer
 from PySide6.QtGui import (
     QAction,
     QCloseEvent,
@@ -45,7 +45,14 @@ from sweepedit.app.commands import (
 from sweepedit.app.document import Document
 from sweepedit.app.panels import FitPanel, PrimitiveListPanel, PropertiesPanel
 from sweepedit.app.scene import SceneMouse, SweepScene
-from sweepedit.app.worker import FitThread, MetricsRunner, load_fit_api, make_settings, with_locked
+from sweepedit.app.worker import (
+    FitThread,
+    MetricsRunner,
+    call_keeping_window_live,
+    load_fit_api,
+    make_settings,
+    with_locked,
+)
 from sweepedit.errors import SweepeditError
 
 APP_NAME = "SweepEdit"
@@ -379,14 +386,14 @@ class MainWindow(QMainWindow):
         path = Path(path)
         if self.fitting:
             return False
-        # Loading voxelises and samples the shape (a second or two): say so meanwhile.
+        # Loading voxelises and samples the shape (a second or two): off the GUI thread, so
+        # the window keeps painting while the status bar says what it is doing.
         self.show_status(f"Loading {path.name}…", 0)
         QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
-        QApplication.processEvents(QEventLoop.ProcessEventsFlag.ExcludeUserInputEvents)
         try:
             from sweepedit.io.shapes import load_shape
 
-            shape = load_shape(path)
+            shape = call_keeping_window_live(lambda: load_shape(path))
         except Exception as exc:  # any loader failure is the file's, not the app's
             QApplication.restoreOverrideCursor()
             self.statusBar().clearMessage()

@@ -42,9 +42,11 @@ if TYPE_CHECKING:
 # Axis samples per primitive for the axis (Chamfer) loss.
 _AXIS_SAMPLES = 16
 # Selection logit of warm-started primitives (sigmoid ~ 0.88: on, but free to drop), and
-# of the spare ones beyond the skeleton's pieces (sigmoid ~ 0.12: off, free to join).
+# of the spare ones beyond the skeleton's pieces (sigmoid 0.5: undecided, so the
+# reconstruction loss can claim them for what the skeleton missed and parsimony can drop
+# them; at -2 they stayed off and many-limb shapes lost coverage).
 _WARM_SELECTION_LOGIT = 2.0
-_SPARE_SELECTION_LOGIT = -2.0
+_SPARE_SELECTION_LOGIT = 0.0
 
 
 @dataclass

@@ -98,11 +98,18 @@ def axis_fit_error(points: np.ndarray, n_control_points: int) -> float:
     return float(d.min(axis=1).max())
 
 
+def _split_tolerance(radii: np.ndarray) -> float:
+    """How far (normalised units) one axis may stray from a branch of these radii (M,)
+    before the branch is split: a quarter of its radius keeps the sweep inside the limb."""
+    return 0.25 * float(np.median(radii)) + 0.5 * VOXEL
+
+
 def _pieces(branches: Sequence, k: int,
             n_control_points: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """(points (M, 3), radii (M,)) pieces: the k branches that carry the most volume, the
     worst-fitting one split in two while there are fewer than k and one axis cannot follow
-    it to within half its radius (a straight handle stays one sweep). Closed loops are cut
+    it to within a quarter of its radius plus half a voxel (a straight handle stays one
+    sweep). Closed loops are cut
     in three first, since one quadratic axis cannot close on itself."""
     pieces: list[tuple[np.ndarray, np.ndarray]] = []
     for br in branches:
@@ -122,7 +129,7 @@ def _pieces(branches: Sequence, k: int,
                                                               VOXEL) ** 2)
     pieces = pieces[:k]
     while 0 < len(pieces) < k:
-        excess = [axis_fit_error(p, n_control_points) - (0.5 * float(np.median(r)) + VOXEL)
+        excess = [axis_fit_error(p, n_control_points) - _split_tolerance(r)
                   if len(p) >= 2 * MIN_PIECE_POINTS else -np.inf for p, r in pieces]
         longest = int(np.argmax(excess))
         if excess[longest] <= 0.0:

@@ -302,6 +302,20 @@ def test_property_panel_and_shortcuts_edit_through_commands(qtbot, window, small
     slider.sliderReleased.emit()
     assert window.doc.primitive(1).a == pytest.approx(0.01 + 0.49 * 0.34, abs=1e-3)
     assert len(window.stack) == 1
+    # Control-point sliders: a drag moves one coordinate, exactly, as one undo step.
+    cp_before = window.doc.primitive(1).control_points.copy()
+    y_slider = panel.cp_widgets[1][1].slider  # c2, y over [-1, 1] in 1000 steps
+    for v in (520, 540, 560):
+        y_slider.setValue(v)
+    y_slider.sliderReleased.emit()
+    moved = window.doc.primitive(1).control_points
+    assert moved[1, 1] == pytest.approx(-1 + 2 * 0.56, abs=1e-9)
+    np.testing.assert_array_equal(np.delete(moved, 1, axis=0), np.delete(cp_before, 1, axis=0))
+    assert moved[1, 0] == cp_before[1, 0] and moved[1, 2] == cp_before[1, 2]
+    assert len(window.stack) == 2
+    window.stack.undo()
+    np.testing.assert_array_equal(window.doc.primitive(1).control_points, cp_before)
+    assert panel.cp_widgets[1][1].value() == pytest.approx(cp_before[1, 1], abs=1e-4)
     panel.scaling_widgets[0].spin.setValue(-0.2)
     panel.translate_spins[0].setValue(0.1)
     panel.rotate_spins[2].setValue(90)
@@ -589,3 +603,33 @@ def test_txt_files_are_told_apart(tmp_path: Path) -> None:
     assert not is_parameter_file(cloud)
     assert is_parameter_file(official)
     assert is_parameter_file(tmp_path / "a.json") and not is_parameter_file(tmp_path / "a.obj")
+
+
+def test_blocking_work_runs_off_the_gui_thread_while_events_flow(qtbot) -> None:
+    """call_keeping_window_live: the call runs in another thread, timers on the GUI thread
+    still fire meanwhile, and the result or the exception comes back to the caller."""
+    from PySide6.QtCore import QTimer
+
+    from sweepedit.app.worker import call_keeping_window_live
+
+    ticks: list[bool] = []
+    timer = QTimer()
+    timer.timeout.connect(lambda: ticks.append(True))
+    timer.start(20)
+    ran_in: list[bool] = []
+
+    def slow() -> int:
+        ran_in.append(threading.current_thread() is threading.main_thread())
+        time.sleep(0.4)
+        return 7
+
+    assert call_keeping_window_live(slow) == 7
+    timer.stop()
+    assert ran_in == [False]
+    assert len(ticks) >= 5  # ~20 possible in 0.4 s; a blocked GUI thread would give 0
+
+    def broken() -> None:
+        raise ValueError("bad file")
+
+    with pytest.raises(ValueError, match="bad file"):
+        call_keeping_window_live(broken)
