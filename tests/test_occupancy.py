@@ -199,3 +199,17 @@ def test_fast_winding_numbers_match_exact():
     box = trimesh.creation.box(extents=(0.8, 0.8, 0.8))
     w = occ.winding_numbers(box.vertices, box.faces, q)
     assert np.array_equal(np.abs(w) > 0.5, np.all(np.abs(q) < 0.4, axis=1))
+
+
+def test_winding_numbers_in_chunks_keep_the_query_order(monkeypatch):
+    # 5,120 faces with edges under LONG_EDGE, so none is split and chunks are 4 x 5,120
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.35)
+    q = np.random.default_rng(6).uniform(-0.5, 0.5, size=(100_000, 3))
+    whole = occ.winding_numbers(sphere.vertices, sphere.faces, q)
+    monkeypatch.setattr(occ, "WINDING_CHUNK_QUERIES", 10)
+    assert len(q) > 4 * 4 * len(sphere.faces)  # at least four chunks
+    chunked = occ.winding_numbers(sphere.vertices, sphere.faces, q)
+    np.testing.assert_array_equal(chunked, whole)
+    r = np.linalg.norm(q, axis=1)
+    clear = np.abs(r - 0.35) > 0.01  # away from the faceted surface
+    assert np.array_equal((chunked > 0.5)[clear], (r < 0.35)[clear])
