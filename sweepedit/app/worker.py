@@ -13,7 +13,7 @@ import traceback
 from collections.abc import Callable
 from typing import Any
 
-from PySide6.QtCore import QCoreApplication, QEventLoop, QObject, QThread, QTimer, Signal, Slot
+from PySide6.QtCore import QEventLoop, QObject, Qt, QThread, QTimer, Signal, Slot
 
 from sweepedit.geometry.model import Abstraction, SweepPrimitive
 
@@ -38,24 +38,34 @@ def load_evaluate() -> Callable[..., dict]:
     return evaluate
 
 
-def call_keeping_window_live(fn: Callable[[], Any], poll_ms: int = 30) -> Any:
+class _Finished(QObject):
+    """Carries "the call is over" from a worker thread to the GUI thread's event loop."""
+
+    finished = Signal()
+
+
+def call_keeping_window_live(fn: Callable[[], Any]) -> Any:
     """fn() run in a worker thread while the GUI thread keeps painting and resizing (user
     input waits, so nothing can change under the call); its result is returned, or its
     exception re-raised, here. For short blocking work such as loading a shape."""
     outcome: dict[str, Any] = {}
+    signal = _Finished()
+    loop = QEventLoop()
+    # Queued: the quit runs in this thread's loop, even if fn ends before exec() starts.
+    signal.finished.connect(loop.quit, Qt.ConnectionType.QueuedConnection)
 
     def run() -> None:
         try:
             outcome["value"] = fn()
         except BaseException as exc:  # handed back to the caller's thread
             outcome["error"] = exc
+        finally:
+            signal.finished.emit()
 
     thread = threading.Thread(target=run, name="sweepedit-load", daemon=True)
     thread.start()
-    while thread.is_alive():
-        QCoreApplication.processEvents(QEventLoop.ProcessEventsFlag.ExcludeUserInputEvents,
-                                       poll_ms)
-        thread.join(poll_ms / 1000.0)
+    loop.exec(QEventLoop.ProcessEventsFlag.ExcludeUserInputEvents)
+    thread.join()
     if "error" in outcome:
         raise outcome["error"]
     return outcome.get("value")
