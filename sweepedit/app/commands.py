@@ -44,33 +44,47 @@ class Command:
 
 
 class SetControlPoints(Command):
-    """Replace one primitive's control points (moving a point, transforming the primitive)."""
+    """Replace one primitive's control points (moving a point, transforming the primitive),
+    optionally with new profile half-axes a, b (`profile`, when the whole primitive is
+    scaled): one undo step either way."""
 
     def __init__(self, index: int, control_points: np.ndarray, text: str = "Move control points",
-                 merge_key: Hashable | None = None) -> None:
+                 merge_key: Hashable | None = None,
+                 profile: dict[str, float] | None = None) -> None:
         self.index = index
         self.new = np.array(control_points, dtype=np.float64, copy=True)
         self.old: np.ndarray | None = None
+        self.new_profile = {k: float(v) for k, v in (profile or {}).items()}
+        if set(self.new_profile) - {"a", "b"}:
+            raise KeyError(f"not a profile half-axis: {sorted(set(self.new_profile) - {'a', 'b'})}")
+        self.old_profile: dict[str, float] = {}
         self.text = text
         self.merge_key = merge_key
 
     def check(self, doc: Document) -> None:
         candidate = doc.primitive(self.index).copy()
         candidate.control_points = self.new
+        for name, value in self.new_profile.items():
+            setattr(candidate, name, value)
         candidate.validate(self.index)
 
     def redo(self, doc: Document) -> None:
         if self.old is None:
-            self.old = doc.primitive(self.index).control_points.copy()
-        doc.set_control_points(self.index, self.new)
+            prim = doc.primitive(self.index)
+            self.old = prim.control_points.copy()
+            self.old_profile = {name: getattr(prim, name) for name in self.new_profile}
+        doc.set_control_points(self.index, self.new, self.new_profile)
 
     def undo(self, doc: Document) -> None:
         assert self.old is not None
-        doc.set_control_points(self.index, self.old)
+        doc.set_control_points(self.index, self.old, self.old_profile)
 
     def merge(self, newer: Command) -> None:
         assert isinstance(newer, SetControlPoints)
         self.new = newer.new
+        for name, value in newer.new_profile.items():
+            self.old_profile.setdefault(name, newer.old_profile[name])
+            self.new_profile[name] = value
 
 
 class SetFields(Command):
@@ -335,10 +349,17 @@ def apply_affine(points: np.ndarray, matrix: np.ndarray) -> np.ndarray:
 
 def transform_primitive(doc: Document, index: int, matrix: np.ndarray,
                         text: str = "Transform primitive",
-                        merge_key: Hashable | None = None) -> SetControlPoints:
-    """Map all control points of a primitive through an affine 4x4 matrix."""
-    points = apply_affine(doc.primitive(index).control_points, np.asarray(matrix, float))
-    return SetControlPoints(index, points, text=text, merge_key=merge_key)
+                        merge_key: Hashable | None = None,
+                        profile_scale: float = 1.0) -> SetControlPoints:
+    """Map all control points of a primitive through an affine 4x4 matrix; with
+    profile_scale != 1 the profile half-axes a, b are multiplied by it in the same step
+    (a uniform scale of the whole solid, not only of its axis)."""
+    prim = doc.primitive(index)
+    points = apply_affine(prim.control_points, np.asarray(matrix, float))
+    profile = None
+    if float(profile_scale) != 1.0:
+        profile = {"a": prim.a * float(profile_scale), "b": prim.b * float(profile_scale)}
+    return SetControlPoints(index, points, text=text, merge_key=merge_key, profile=profile)
 
 
 def new_primitive(doc: Document) -> SweepPrimitive:

@@ -8,6 +8,7 @@ undone.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -87,6 +88,10 @@ class Document:
         self.shape: Any | None = None  # sweepedit.io.shapes.Shape
         self.shape_path: Path | None = None
         self.path: Path | None = None  # the parameter file, once opened or saved
+        # Whether abstraction.normalization is the primitives' own frame (a JSON file, a fit,
+        # a shape opened first) or only the identity default (the official .txt format and
+        # hand-made primitives carry none): a shape opened later lends its frame then.
+        self.frame_known = False
         self.dirty = False
         self.selection: int | None = None
         self.primitive_changed = Signal()
@@ -123,10 +128,14 @@ class Document:
         return "untitled"
 
     # -- whole-document changes (not undoable: opening files) ----------------------------
-    def set_abstraction(self, abstraction: Abstraction, path: str | Path | None = None) -> None:
-        """Replace everything edited (after opening a parameter file or starting anew)."""
+    def set_abstraction(self, abstraction: Abstraction, path: str | Path | None = None,
+                        frame_known: bool = True) -> None:
+        """Replace everything edited (after opening a parameter file or starting anew).
+        frame_known=False: the file had no normalisation (official .txt), so the target
+        shape's is adopted when one is opened."""
         ensure_distinct_colors(abstraction.primitives)
         self.abstraction = abstraction
+        self.frame_known = bool(frame_known)
         self.path = Path(path) if path is not None else None
         self.selection = None
         self.primitives_reset.emit()
@@ -136,12 +145,15 @@ class Document:
         self.edited.emit()
 
     def set_shape(self, shape: Any | None, path: str | Path | None = None) -> None:
-        """Set the target shape; primitives of an empty document adopt its normalisation."""
+        """Set the target shape; an empty document, or primitives without a frame of their
+        own (official .txt, made by hand), adopt its normalisation."""
         self.shape = shape
         self.shape_path = Path(path) if path is not None else None
         normalization = getattr(shape, "normalization", None)
-        if shape is not None and normalization is not None and not self.primitives:
-            self.abstraction.normalization = normalization
+        if (shape is not None and normalization is not None
+                and (not self.primitives or not self.frame_known)):
+            self.abstraction.normalization = copy.deepcopy(normalization)
+            self.frame_known = True
         if shape is not None and path is not None and self.abstraction.source is None:
             self.abstraction.source = {"path": str(path)}
         self.shape_changed.emit()
@@ -165,10 +177,17 @@ class Document:
             self.selection_changed.emit(index)
 
     # -- mutators used by commands --------------------------------------------------------
-    def set_control_points(self, index: int, control_points: np.ndarray) -> None:
-        """Replace one primitive's control points by a copy of `control_points` (n, 3)."""
-        self.abstraction.primitives[index].control_points = np.array(
-            control_points, dtype=np.float64, copy=True)
+    def set_control_points(self, index: int, control_points: np.ndarray,
+                           profile: dict[str, float] | None = None) -> None:
+        """Replace one primitive's control points by a copy of `control_points` (n, 3),
+        and optionally its profile half-axes (`profile` {"a": .., "b": ..}) in the same
+        change (scaling a whole primitive): one re-sweep, one notification."""
+        prim = self.abstraction.primitives[index]
+        prim.control_points = np.array(control_points, dtype=np.float64, copy=True)
+        for name, value in (profile or {}).items():
+            if name not in ("a", "b"):
+                raise KeyError(f"'{name}' is not a profile half-axis")
+            setattr(prim, name, float(value))
         self.primitive_changed.emit(index, GEOMETRY)
         self.edited.emit()
 

@@ -16,6 +16,7 @@ from PySide6.QtCore import QPointF, QRectF, QSignalBlocker, Qt, Signal
 from PySide6.QtGui import QAction, QColor, QFont, QIcon, QPainter, QPen, QPixmap, QPolygonF
 from PySide6.QtWidgets import (
     QAbstractItemView,
+    QCheckBox,
     QColorDialog,
     QComboBox,
     QDoubleSpinBox,
@@ -349,12 +350,18 @@ class PropertiesPanel(QWidget):
         tg.addWidget(self.scale_spin, 3, 1)
         self.apply_transform_button = QPushButton("Apply")
         self.apply_transform_button.setToolTip("Apply the move, rotation (about x, y, z) and "
-                                               "scale to the control points (Enter)")
+                                               "scale about the control points' centroid "
+                                               "(Enter)")
         self.apply_transform_button.clicked.connect(self.apply_transform)
         self.reset_transform_button = QPushButton("Reset")
         self.reset_transform_button.clicked.connect(self.reset_transform)
         tg.addWidget(self.apply_transform_button, 3, 2)
         tg.addWidget(self.reset_transform_button, 3, 3)
+        self.scale_profile_check = QCheckBox("Scale the profile (a, b) too")
+        self.scale_profile_check.setChecked(True)
+        self.scale_profile_check.setToolTip("On: Scale resizes the whole solid. Off: only the "
+                                            "axis (its control points) is scaled")
+        tg.addWidget(self.scale_profile_check, 4, 1, 1, 3)
         for s in (*self.translate_spins, *self.rotate_spins, self.scale_spin):
             s.lineEdit().returnPressed.connect(self.apply_transform)
 
@@ -495,8 +502,9 @@ class PropertiesPanel(QWidget):
         m = self.transform_matrix()
         if np.allclose(m, np.eye(4)):
             return
+        profile_scale = self.scale_spin.value() if self.scale_profile_check.isChecked() else 1.0
         self.stack.close_merge()
-        if self.editor.push(transform_primitive(self.doc, i, m)):
+        if self.editor.push(transform_primitive(self.doc, i, m, profile_scale=profile_scale)):
             self.reset_transform()
 
     def reset_transform(self) -> None:

@@ -7,6 +7,7 @@ tests replace these two methods so that no modal dialog ever blocks them.
 
 from __future__ import annotations
 
+import copy
 import time
 from pathlib import Path
 from typing import Any
@@ -419,11 +420,14 @@ class MainWindow(QMainWindow):
             self.report_error("Cannot open parameters", _describe(exc, path))
             return False
         shape_norm = getattr(self.doc.shape, "normalization", None)
-        if shape_norm is not None and path.suffix.lower() == ".txt":
-            abstraction.normalization = shape_norm  # the official format has no frame
+        # The official format has no frame: it takes the shape's, now or once one is opened.
+        no_frame = path.suffix.lower() == ".txt"
+        if shape_norm is not None and no_frame:
+            abstraction.normalization = copy.deepcopy(shape_norm)
         if self.doc.shape_path is not None and abstraction.source is None:
             abstraction.source = {"path": str(self.doc.shape_path)}
-        self.doc.set_abstraction(abstraction, path)
+        self.doc.set_abstraction(abstraction, path,
+                                 frame_known=not no_frame or shape_norm is not None)
         self.stack.clear()
         self._add_recent(path)
         self.show_status(f"Opened {len(abstraction)} primitives from {path.name}")

@@ -111,6 +111,47 @@ def test_every_command_undoes_and_redoes_exactly() -> None:
     assert doc.dirty
 
 
+def test_scaling_a_whole_primitive_scales_its_profile_in_one_step() -> None:
+    doc = Document(random_abstraction(2, seed=5))
+    stack = CommandStack(doc)
+    before = doc.primitive(0).copy()
+    pivot = before.control_points.mean(0)
+    stack.push(transform_primitive(doc, 0, affine_matrix(scale=1.5, pivot=pivot),
+                                   profile_scale=1.5))
+    after = doc.primitive(0)
+    np.testing.assert_allclose(after.control_points - pivot,
+                               1.5 * (before.control_points - pivot), atol=1e-15)
+    assert (after.a, after.b) == (before.a * 1.5, before.b * 1.5)
+    assert (after.degree, after.scaling) == (before.degree, before.scaling)
+    assert len(stack) == 1
+    stack.undo()
+    assert snapshot(doc) == snapshot(Document(random_abstraction(2, seed=5)))
+    # A scale that would take a past its range is refused as a whole.
+    with pytest.raises(InvalidPrimitiveError):
+        stack.push(transform_primitive(doc, 0, affine_matrix(scale=20.0, pivot=pivot),
+                                       profile_scale=20.0))
+    assert snapshot(doc) == snapshot(Document(random_abstraction(2, seed=5)))
+
+
+def test_primitives_without_a_frame_adopt_the_shape_opened_later() -> None:
+    from sweepedit.geometry.model import Normalization
+
+    norm = Normalization(center=[1.0, -2.0, 0.5], scale=3.5)
+    shape = SimpleNamespace(normalization=norm)
+    # Official .txt (no frame) opened before its shape: the shape's frame is adopted.
+    doc = Document()
+    doc.set_abstraction(random_abstraction(2), "a.txt", frame_known=False)
+    doc.set_shape(shape, "shape.obj")
+    assert doc.abstraction.normalization.scale == 3.5
+    np.testing.assert_array_equal(doc.abstraction.normalization.center, norm.center)
+    # A JSON file carries its own frame: another shape does not replace it.
+    own = random_abstraction(2)
+    own.normalization = Normalization(center=[0.0, 0.0, 1.0], scale=2.0)
+    doc.set_abstraction(own, "a.json")
+    doc.set_shape(shape, "shape.obj")
+    assert doc.abstraction.normalization.scale == 2.0
+
+
 def test_consecutive_drags_merge_until_the_gesture_ends() -> None:
     doc = Document(random_abstraction(2))
     stack = CommandStack(doc)
@@ -489,6 +530,106 @@ def test_fit_wiring_preview_cancel_apply_undo(qtbot, window, small_files, monkey
 
 
 @pytest.mark.gui
+def test_a_failing_fit_shows_an_error_and_the_app_goes_on(qtbot, window, small_files,
+                                                          monkeypatch) -> None:
+    from dataclasses import dataclass
+
+    import sweepedit.app.window as window_module
+
+    @dataclass
+    class Settings:
+        primitives: int = 3
+        iterations: int = 50
+        seed: int = 0
+
+    def broken_fit(shape, settings, *, locked=(), callback=None, cancel=None):
+        callback(SimpleNamespace(iteration=1, total=settings.iterations,
+                                 losses={"total": 1.0},
+                                 abstraction=random_abstraction(settings.primitives)))
+        time.sleep(0.2)
+        raise RuntimeError("the optimiser diverged")
+
+    monkeypatch.setattr(window_module, "load_fit_api", lambda: (broken_fit, Settings))
+    window.open_path(small_files["obj"])
+    window.open_path(small_files["json"])
+    before = window.doc.abstraction.copy()
+    assert window.start_fit({"primitives": 3, "iterations": 50, "seed": 0})
+    qtbot.waitUntil(lambda: not window.fitting, timeout=10000)
+    assert len(window.errors) == 1
+    title, message = window.errors[0]
+    assert title == "Fit failed" and "the optimiser diverged" in message
+    # Nothing applied, the preview is gone, editing and fitting work again.
+    assert not window.scene.previewing and window.scene.n_actors == 2
+    assert_same_abstraction(window.doc.abstraction, before)
+    assert len(window.stack) == 0 and window.act_undo.isEnabled() is False
+    window.doc.select(0)
+    assert window.props_panel.cp_group.isEnabled()
+    assert window.scene.drag_control_point(0, 1, [0.0, 0.05, 0.0])
+    assert len(window.stack) == 1
+    monkeypatch.setattr(window_module, "load_fit_api", lambda: (fake_fit, Settings))
+    assert window.start_fit({"primitives": 3, "iterations": 20, "seed": 0})
+    qtbot.waitUntil(lambda: not window.fitting, timeout=10000)
+    assert len(window.errors) == 1 and len(window.doc) == 3
+
+
+@pytest.mark.gui
+def test_transform_section_scales_the_whole_primitive(qtbot, window, small_files) -> None:
+    window.open_path(small_files["json"])
+    window.doc.select(1)
+    panel = window.props_panel
+    before = window.doc.primitive(1).copy()
+    assert panel.scale_profile_check.isChecked()
+    panel.scale_spin.setValue(1.5)
+    panel.apply_transform()
+    after = window.doc.primitive(1)
+    assert after.a == pytest.approx(1.5 * before.a) and after.b == pytest.approx(1.5 * before.b)
+    span = np.ptp(after.control_points, axis=0)
+    np.testing.assert_allclose(span, 1.5 * np.ptp(before.control_points, axis=0))
+    assert panel.field_widgets["a"].value() == pytest.approx(after.a, abs=1e-3)
+    # The swept mesh grew in every direction (thicker, not only longer).
+    poly = window.scene.primitive_polydata(1)
+    extent = np.ptp(np.asarray(poly.points), axis=0)
+    assert extent[0] == pytest.approx(2 * 1.5 * before.a, rel=0.05)
+    assert len(window.stack) == 1
+    # Unchecked: only the axis is scaled.
+    panel.scale_profile_check.setChecked(False)
+    panel.scale_spin.setValue(2.0)
+    panel.apply_transform()
+    assert window.doc.primitive(1).a == after.a and len(window.stack) == 2
+    # Too large for the profile's range: refused, the status bar says why.
+    panel.scale_profile_check.setChecked(True)
+    panel.scale_spin.setValue(10.0)
+    panel.apply_transform()
+    assert len(window.stack) == 2 and "a" in window.statusBar().currentMessage()
+    window.stack.undo()
+    window.stack.undo()
+    assert_same_abstraction(window.doc.abstraction, Abstraction([
+        window.doc.primitive(0).copy(), before]))
+
+
+@pytest.mark.gui
+def test_official_txt_before_its_shape_exports_in_the_shape_frame(qtbot, window, small_files,
+                                                                   tmp_path: Path) -> None:
+    import trimesh
+
+    from sweepedit.io.params import read_abstraction, write_official_txt
+
+    txt = tmp_path / "box.txt"
+    write_official_txt(read_abstraction(small_files["json"]), txt)
+    assert window.open_path(txt)
+    assert window.open_path(small_files["obj"])
+    shape_norm = window.doc.shape.normalization
+    assert window.doc.abstraction.normalization.scale == pytest.approx(shape_norm.scale)
+    out = tmp_path / "union.stl"
+    assert window.export_mesh(out)
+    exported = trimesh.load(out)
+    box = trimesh.load(small_files["obj"])
+    # The bar spans the box's length (0.9 of the normalised unit) in the box's own units.
+    assert exported.extents[0] == pytest.approx(0.9 * box.extents[0], rel=0.05)
+    assert window.errors == []
+
+
+@pytest.mark.gui
 def test_closing_during_a_fit_stops_it_cleanly(qtbot, window, small_files, monkeypatch) -> None:
     from dataclasses import dataclass
 
@@ -571,6 +712,18 @@ def test_screenshot_entry_point(qtbot, small_files, tmp_path: Path) -> None:
     out = tmp_path / "shot.png"
     assert screenshot(str(small_files["json"]), str(out), size=(900, 600)) == 0
     assert out.read_bytes()[:4] == b"\x89PNG"
+    # Not a blank frame: the window at the size asked, and the 3D view in its middle
+    # shows the bar, shaded, in its colour (the cross lies inside it).
+    from PySide6.QtGui import QColor, QImage
+
+    image = QImage(str(out))
+    assert (image.width(), image.height()) == (900, 600)
+    middle = {image.pixelColor(x, y).name() for x in range(300, 600, 3)
+              for y in range(150, 450, 3)}
+    want = QColor(palette_color(0))
+    bar = [c for c in middle if abs(QColor(c).hueF() - want.hueF()) < 0.03
+           and QColor(c).saturationF() > 0.4]
+    assert len(bar) > 20, "the bar's shaded colour is not in the view"
     assert screenshot(str(small_files["broken_json"]), str(tmp_path / "no.png")) == 1
     assert not (tmp_path / "no.png").exists()
 
@@ -634,7 +787,7 @@ def test_blocking_work_runs_off_the_gui_thread_while_events_flow(qtbot) -> None:
     with pytest.raises(ValueError, match="bad file"):
         call_keeping_window_live(broken)
     # A call that ends before the local event loop starts must not leave it waiting.
-    assert [call_keeping_window_live(lambda: k) for k in range(20)] == list(range(20))
+    assert [call_keeping_window_live(lambda k=k: k) for k in range(20)] == list(range(20))
 
 
 def test_qt_calls_keep_python_reference_counts(qtbot) -> None:
