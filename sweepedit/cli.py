@@ -42,6 +42,25 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
+def _int_at_least(minimum: int, multiple_of: int = 1):
+    """An argparse type: an int >= minimum (and a multiple of `multiple_of`); a bad value is
+    argparse's one-line usage error, not a traceback from deep inside."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{value} is less than {minimum}")
+        if value % multiple_of:
+            raise argparse.ArgumentTypeError(f"{value} is not a multiple of {multiple_of}")
+        return value
+
+    parse.__name__ = "int"
+    return parse
+
+
 def _load_points(path: str) -> "np.ndarray":  # noqa: F821, UP037
     import numpy as np
 
@@ -49,6 +68,10 @@ def _load_points(path: str) -> "np.ndarray":  # noqa: F821, UP037
         points = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
         raise SweepeditError(f"{path}: cannot read a .npy array ({exc})") from None
+    if not isinstance(points, np.ndarray):  # an .npz archive
+        raise SweepeditError(f"{path}: expected a .npy array of points, not an archive")
+    if points.dtype.kind not in "biuf":
+        raise SweepeditError(f"{path}: expected numbers, got an array of {points.dtype}")
     if points.ndim != 2 or points.shape[1] != 3:
         raise SweepeditError(f"{path}: expected an (N, 3) array of points, got {points.shape}")
     if not np.all(np.isfinite(points)):
@@ -276,8 +299,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write one file per primitive (OUTPUT_NN.ext) instead of the union")
     p.add_argument("--original-frame", action="store_true",
                    help="map back through the normalisation to the shape's original frame")
-    p.add_argument("--stations", type=int, default=64, help="rings along the axis (64)")
-    p.add_argument("--profile-points", type=int, default=48,
+    p.add_argument("--stations", type=_int_at_least(2), default=64,
+                   help="rings along the axis, at least 2 (64)")
+    p.add_argument("--profile-points", type=_int_at_least(4, multiple_of=4), default=48,
                    help="points around the profile, a multiple of 4 (48)")
     p.set_defaults(func=_cmd_export)
 
@@ -298,7 +322,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("params", help="parameter file")
     p.add_argument("shape", help="shape file (mesh, voxels or point cloud)")
     p.add_argument("--json", action="store_true", help="also print one JSON object, last line")
-    p.add_argument("--samples", type=int, default=100_000, help="surface samples per side")
+    p.add_argument("--samples", type=_int_at_least(1), default=100_000,
+                   help="surface samples per side")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_eval)
 

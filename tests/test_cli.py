@@ -131,3 +131,48 @@ def test_inside_with_soft_sweepers_agrees_with_exact(params_file: Path, tmp_path
     exact = inside_union(pts, read_abstraction(params_file).primitives)
     hard = soft > 0.5
     assert (hard & exact).sum() / (hard | exact).sum() >= 0.9
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["export", "{params}", "-o", "{tmp}/m.stl", "--profile-points", "30"],
+        ["export", "{params}", "-o", "{tmp}/m.stl", "--stations", "1"],
+        ["export", "{params}", "-o", "{tmp}/m.stl", "--stations", "many"],
+        ["eval", "{params}", "{tmp}/shape.stl", "--samples", "0"],
+    ],
+)
+def test_bad_option_values_are_usage_errors(params_file: Path, tmp_path: Path, capsys,
+                                            args: list[str]) -> None:
+    argv = [a.format(params=params_file, tmp=tmp_path) for a in args]
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: argument --" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == [params_file]
+
+
+def test_unwritable_output_names_the_output_not_a_temporary_file(params_file: Path,
+                                                                  tmp_path: Path,
+                                                                  capsys) -> None:
+    target = tmp_path / "no_such_folder" / "m.stl"
+    assert run("export", params_file, "-o", target) == 2
+    err = capsys.readouterr().err
+    assert f"{target}: No such file or directory" in err and ".tmp" not in err
+    (tmp_path / "taken.obj").mkdir()  # a folder where the file should go
+    assert run("export", params_file, "-o", tmp_path / "taken.obj") == 2
+    err = capsys.readouterr().err
+    assert "taken.obj" in err and ".tmp" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["taken.obj", "two.json"]
+    assert list((tmp_path / "taken.obj").iterdir()) == []
+
+
+def test_points_that_are_not_numbers(params_file: Path, tmp_path: Path, capsys) -> None:
+    np.save(tmp_path / "words.npy", np.array([["a", "b", "c"]]))
+    np.savez(tmp_path / "pts.npz", points=np.zeros((2, 3)))
+    for name, needle in (("words.npy", "expected numbers"), ("pts.npz", "archive")):
+        assert run("inside", params_file, tmp_path / name, "-o", tmp_path / "o.npy") == 2
+        err = capsys.readouterr().err
+        assert name in err and needle in err and "Traceback" not in err
+    assert not (tmp_path / "o.npy").exists()

@@ -108,7 +108,10 @@ def atomic_open(path: PathLike, mode: Literal["wb", "w"] = "wb", *, encoding: st
         keep_mode: int | None = stat.S_IMODE(os.stat(path).st_mode)
     except FileNotFoundError:
         keep_mode = None
-    tmp, fd = _create_temp(directory, path.name)
+    try:
+        tmp, fd = _create_temp(directory, path.name)
+    except OSError as exc:
+        raise _about(exc, path) from None
     try:
         kwargs: dict[str, Any] = {} if mode == "wb" else {"encoding": encoding,
                                                           "newline": newline}
@@ -118,12 +121,24 @@ def atomic_open(path: PathLike, mode: Literal["wb", "w"] = "wb", *, encoding: st
             os.fsync(handle.fileno())
         if keep_mode is not None:
             os.chmod(tmp, keep_mode)
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise _about(exc, path) from None
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
     _fsync_directory(directory)
+
+
+def _about(exc: OSError, path: Path) -> OSError:
+    """The same OS error, naming the file the caller asked for instead of the hidden
+    temporary file (a missing folder or a folder in the way would otherwise be reported
+    against '.name.1234abcd.tmp')."""
+    if exc.errno is None:
+        return exc
+    return type(exc)(exc.errno, exc.strerror, str(path))
 
 
 def _create_temp(directory: Path, name: str) -> tuple[Path, int]:
