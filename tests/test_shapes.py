@@ -306,3 +306,13 @@ def test_million_face_mesh_loads_in_seconds(tmp_path):
     elapsed = time.perf_counter() - start
     assert shape.occupancy.sum() * H**3 == pytest.approx(np.pi / 6, rel=0.02)
     assert elapsed < 15.0
+
+
+def test_a_few_points_in_a_plane_still_load(tmp_path):
+    # Too sparse to enclose anything: the shell of point cells stays (PointCloudInside's
+    # limits), and the display surface keeps those cells instead of blurring them away.
+    path = tmp_path / "flat.xyz"
+    path.write_text("0 0 0\n1 0 0\n0 1 0\n1 1 0\n0.5 0.5 0\n")
+    shape = _load(path)
+    assert shape.kind == "points" and shape.occupancy.sum() == 5
+    assert len(shape.surface.faces) > 0 and shape.surface.is_watertight

@@ -433,13 +433,17 @@ def grid_surface(grid: np.ndarray, lower: np.ndarray, upper: np.ndarray,
     """Marching-cubes surface (level 0.5) of an (X, Y, Z) bool grid whose cells tile the box
     [lower, upper] (each (3,)), outward-facing, in that box's coordinates.
 
-    smooth > 0 blurs the grid (Gaussian sigma in cells) first for a rounder surface.
+    smooth > 0 blurs the grid (Gaussian sigma in cells) first for a rounder surface; where
+    that would blur every cell below the level (a sparse shell of single cells, as a few
+    points or a flat scan give), the grid is used as it is.
     """
     from skimage.measure import marching_cubes
 
     field = np.pad(grid.astype(np.float32), 1)
     if smooth > 0:
-        field = ndi.gaussian_filter(field, sigma=smooth)
+        blurred = ndi.gaussian_filter(field, sigma=smooth)
+        if blurred.max() > 0.5:
+            field = blurred
     verts, faces, _, _ = marching_cubes(field, level=0.5)
     # Padded index v corresponds to cell coordinate v - 1, whose centre is at v - 0.5.
     lower = np.asarray(lower, dtype=np.float64)
