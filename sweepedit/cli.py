@@ -136,9 +136,13 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
     print(f"shape        {args.shape} ({shape.kind})")
     print(f"normalised   centre {np.round(shape.normalization.center, 6).tolist()}, "
           f"scale {shape.normalization.scale:.6g}")
+    if shape.cloud is not None:
+        print(f"points       {len(shape.cloud)} input points")
     if shape.mesh is not None:
         mesh = shape.mesh
-        print(f"mesh         {len(mesh.vertices)} vertices, {len(mesh.faces)} faces, "
+        # For voxels and point clouds the surface is made from the grid (for display).
+        label = "mesh        " if shape.kind == "mesh" else "grid surface"
+        print(f"{label} {len(mesh.vertices)} vertices, {len(mesh.faces)} faces, "
               f"watertight {mesh.is_watertight}, components {shape.n_components}")
     occupancy = np.asarray(shape.occupancy)
     print(f"occupancy    {occupancy.shape[0]}^3, {occupancy.mean():.2%} inside")

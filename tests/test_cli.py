@@ -176,3 +176,26 @@ def test_points_that_are_not_numbers(params_file: Path, tmp_path: Path, capsys) 
         err = capsys.readouterr().err
         assert name in err and needle in err and "Traceback" not in err
     assert not (tmp_path / "o.npy").exists()
+
+
+def test_inspect_reports_what_was_loaded(tmp_path: Path, capsys) -> None:
+    # A torus of tube radius 1 about a circle of radius 3: normalised by its longest side 8.
+    torus = trimesh.creation.torus(major_radius=3.0, minor_radius=1.0)
+    torus.export(tmp_path / "torus.ply")
+    png = tmp_path / "torus.png"
+    assert run("inspect", tmp_path / "torus.ply", "--screenshot", png) == 0
+    out = capsys.readouterr().out
+    assert f"{len(torus.vertices)} vertices, {len(torus.faces)} faces" in out
+    assert "watertight True, components 1" in out
+    fraction = 2 * np.pi**2 * (3 / 8) * (1 / 8) ** 2  # tube volume / cube volume
+    shown = float(out.split("occupancy")[1].split(",")[1].split("%")[0]) / 100
+    assert shown == pytest.approx(fraction, rel=0.05)
+    assert "skeleton     1 branches, 0 junctions" in out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    d = np.random.default_rng(0).normal(size=(3000, 3))
+    np.savetxt(tmp_path / "ball.xyz", d / np.linalg.norm(d, axis=1, keepdims=True))
+    assert run("inspect", tmp_path / "ball.xyz") == 0
+    out = capsys.readouterr().out
+    assert "(points)" in out and "points       3000 input points" in out
+    assert "grid surface" in out and "skeleton     1 branches" in out
