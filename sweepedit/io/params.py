@@ -519,7 +519,7 @@ def read_official_txt(path: PathLike, n_control_points: int | None = None) -> Ab
         content = line.split("#", 1)[0].strip()
         if not content:
             continue
-        values = _parse_row(path, lineno, content.split())
+        values = _parse_row(path, lineno, content.split(), len(rows))
         if expected is None:
             if values.size < official_columns(MIN_CONTROL_POINTS) or (values.size - 5) % 3:
                 raise FileFormatError(path, f"line {lineno}: {values.size} numbers; a row "
@@ -553,17 +553,35 @@ def read_official_txt(path: PathLike, n_control_points: int | None = None) -> Ab
     return Abstraction(primitives=primitives)
 
 
-def _parse_row(path: PathLike, lineno: int, tokens: list[str]) -> np.ndarray:
+def _official_field(column: int, n_columns: int) -> str | None:
+    """The field that 0-based `column` of an official row of `n_columns` numbers holds
+    (names as in the JSON format and in validation errors), or None if the row has a
+    column count no n gives."""
+    if n_columns < official_columns(MIN_CONTROL_POINTS) or (n_columns - 5) % 3:
+        return None
+    n = (n_columns - 5) // 3
+    if column < 3 * n:
+        return f"control_points[{column // 3}]"
+    return ("profile.a", "profile.b", "profile.degree", "scaling[1]",
+            "scaling[0]")[column - 3 * n]
+
+
+def _parse_row(path: PathLike, lineno: int, tokens: list[str], index: int) -> np.ndarray:
+    """The numbers of one row (the index-th primitive); errors name line, column, and the
+    primitive and field where the row's length tells them."""
     values = np.empty(len(tokens))
     for column, token in enumerate(tokens, start=1):
         try:
             value = float(token)
+            problem = None if math.isfinite(value) else "is not a finite number"
         except ValueError:
-            raise FileFormatError(path, f"line {lineno}, column {column}: {token!r} is not a "
-                                  "number") from None
-        if not math.isfinite(value):
-            raise FileFormatError(path, f"line {lineno}, column {column}: {token!r} is not a "
-                                  "finite number")
+            problem = "is not a number"
+        if problem:
+            field = _official_field(column - 1, len(tokens))
+            where = f", primitive {index}, field '{field}'" if field else ""
+            raise FileFormatError(path, f"line {lineno}, column {column}{where}: {token!r} "
+                                  f"{problem}", primitive=index if field else None,
+                                  field=field)
         values[column - 1] = value
     return values
 
