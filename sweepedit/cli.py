@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -121,7 +122,9 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     print(f"F1@0.05    {metrics['f1_0.05']:.4f}")
     print(f"F1@0.01    {metrics['f1_0.01']:.4f}")
     if args.json:
-        print(json.dumps(metrics))
+        # Strict JSON: a distance that does not exist (no primitives) is null, not Infinity.
+        print(json.dumps({k: None if isinstance(v, float) and not math.isfinite(v) else v
+                          for k, v in metrics.items()}, allow_nan=False))
     return 0
 
 

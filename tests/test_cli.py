@@ -199,3 +199,19 @@ def test_inspect_reports_what_was_loaded(tmp_path: Path, capsys) -> None:
     out = capsys.readouterr().out
     assert "(points)" in out and "points       3000 input points" in out
     assert "grid surface" in out and "skeleton     1 branches" in out
+
+
+def test_eval_json_is_strict_json_without_primitives(tmp_path: Path, capsys) -> None:
+    empty = tmp_path / "none.json"
+    empty.write_text('{"format": "sweepedit.abstraction", "version": 1, "primitives": []}')
+    box = tmp_path / "box.stl"
+    trimesh.creation.box(extents=(1.0, 0.5, 0.5)).export(box)
+    assert run("eval", empty, box, "--json", "--samples", "2000") == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+
+    def refuse(token: str) -> None:
+        raise ValueError(token)
+
+    metrics = json.loads(last, parse_constant=refuse)  # no NaN / Infinity tokens
+    assert metrics == {"iou": 0.0, "cd_l1": None, "cd_l2": None, "f1_0.05": 0.0,
+                       "f1_0.01": 0.0, "n_primitives": 0}
