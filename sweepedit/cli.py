@@ -189,7 +189,9 @@ def _fit_settings(args: argparse.Namespace):
 
     return FitSettings(primitives=args.primitives, iterations=args.iterations,
                        sweeper=args.sweeper, seed=args.seed, restarts=args.restarts,
-                       control_points=args.control_points, scaling_degree=args.scaling_degree)
+                       control_points=args.control_points, scaling_degree=args.scaling_degree,
+                       refine_iterations=args.refine_iterations,
+                       residual_rounds=args.residual_rounds)
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -207,10 +209,10 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     settings = _fit_settings(args)
     shape = load_shape(args.shape)
     cancel = threading.Event()
-    bar = tqdm(total=settings.iterations * settings.restarts, unit="it", desc="fitting",
-               dynamic_ncols=True, disable=args.quiet)
+    bar = tqdm(unit="it", desc="fitting", dynamic_ncols=True, disable=args.quiet)
 
     def progress(p) -> None:
+        bar.total = p.total
         bar.n = p.iteration
         bar.set_postfix(rec=f"{p.losses['reconstruction']:.4f}",
                         prims=len(p.abstraction.primitives), refresh=False)
@@ -288,6 +290,10 @@ def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--restarts", type=int, default=1,
                    help="fits from different seeds; the best by IoU is kept (1)")
+    p.add_argument("--refine-iterations", type=int, default=150,
+                   help="steps of direct refinement after the network stage; 0 skips it (150)")
+    p.add_argument("--residual-rounds", type=int, default=2,
+                   help="refinement rounds that add primitives where the shape is missed (2)")
     p.add_argument("--control-points", type=int, default=3, help="per axis (3)")
     p.add_argument("--scaling-degree", type=int, default=2, help="of f(t) (2)")
 

@@ -37,7 +37,7 @@ def test_short_fit_recovers_a_known_sweep(arch_shape) -> None:
     result = fit_abstraction(arch_shape, quick(iterations=120))
     metrics = evaluate(result.abstraction, arch_shape, n_samples=20000)
     assert metrics["iou"] >= 0.8, metrics
-    assert result.abstraction.fit["grid_iou"] == pytest.approx(result.iou)
+    assert result.abstraction.fit["fit_iou"] == pytest.approx(result.iou)
     for p in result.abstraction.primitives:
         p.validate()
 
@@ -89,3 +89,36 @@ def test_empty_shape_is_a_clear_error(tmp_path: Path) -> None:
     np.save(tmp_path / "empty.npy", grid)
     with pytest.raises(SweepeditError):
         fit_abstraction(load_shape(tmp_path / "empty.npy"), quick())
+
+
+def test_cancel_during_refinement_keeps_a_valid_result(arch_shape) -> None:
+    cancel = threading.Event()
+    seen = []
+
+    def callback(progress) -> None:
+        seen.append((progress.iteration, progress.total))
+        for p in progress.abstraction.primitives:
+            p.validate()
+        if progress.iteration > 30:
+            cancel.set()
+
+    settings = quick(iterations=10, refine_iterations=5_000, progress_every=5)
+    result = fit_abstraction(arch_shape, settings, callback=callback, cancel=cancel)
+    assert result.cancelled
+    # The refinement reports on the same count as the network stage, to the same total.
+    assert {total for _, total in seen} == {10 + 5_000 + 2 * 2_500}
+    assert 30 < max(it for it, _ in seen) < 100
+    assert len(result.abstraction) >= 1
+    for p in result.abstraction.primitives:
+        p.validate()
+
+
+def test_refinement_improves_on_the_network_stage(arch_shape) -> None:
+    from sweepedit.analysis.metrics import evaluate
+
+    network = fit_abstraction(arch_shape, quick(iterations=40, refine_iterations=0))
+    refined = fit_abstraction(arch_shape, quick(iterations=40, refine_iterations=100))
+    m_net = evaluate(network.abstraction, arch_shape, n_samples=20000)
+    m_ref = evaluate(refined.abstraction, arch_shape, n_samples=20000)
+    assert m_ref["iou"] > m_net["iou"] + 0.02, (m_net, m_ref)
+    assert m_ref["cd_l1"] < m_net["cd_l1"], (m_net, m_ref)

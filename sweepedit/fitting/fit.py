@@ -30,9 +30,10 @@ from sweepedit.fitting.losses import (
 )
 from sweepedit.fitting.network import SweepNet
 from sweepedit.fitting.params import ParamLayout
+from sweepedit.fitting.refine import RefineSettings, ScoringPoints, refine_primitives
 from sweepedit.fitting.sweepers import load_sweeper
 from sweepedit.fitting.warmstart import warm_start_primitives
-from sweepedit.geometry.inside import grid_points, inside_union
+from sweepedit.geometry.inside import inside_union
 from sweepedit.geometry.model import Abstraction, SweepPrimitive, palette_color
 from sweepedit.geometry.sweep import axis_points
 
@@ -71,11 +72,19 @@ class FitSettings:
     encoder: str = "auto"  # "voxel", "points" or "auto" (by the input's kind)
     weights: LossWeights = field(default_factory=LossWeights)
     progress_every: int = 10
+    # Steps of direct refinement after the network stage (sweepedit.fitting.refine); 0
+    # skips it and the network's primitives are the result.
+    refine_iterations: int = 150
+    # Rounds of refinement that add primitives where the shape is missed (each half as
+    # long as the first pass), while fewer than `primitives` are kept.
+    residual_rounds: int = 2
 
     def validate(self) -> None:
         checks = [
             (self.primitives >= 1, "primitives must be at least 1"),
             (self.iterations >= 1, "iterations must be at least 1"),
+            (self.refine_iterations >= 0, "refine iterations must be >= 0"),
+            (self.residual_rounds >= 0, "residual rounds must be >= 0"),
             (self.restarts >= 1, "restarts must be at least 1"),
             (self.control_points >= 3, "control points must be at least 3"),
             (self.scaling_degree >= 0, "scaling degree must be >= 0"),
@@ -100,6 +109,9 @@ class FitProgress:
 
 @dataclass
 class FitResult:
+    """The fitted abstraction; iou is its IoU over the grid cells and near-surface
+    samples (sweepedit.fitting.refine.ScoringPoints), NaN for a cancelled single run."""
+
     abstraction: Abstraction
     seconds: float
     losses: dict[str, float]
@@ -253,18 +265,13 @@ def _pad_primitives(init: list[SweepPrimitive], k: int, rng: np.random.Generator
     return out
 
 
-def _grid_iou(prims: Sequence[SweepPrimitive], target: np.ndarray) -> float:
-    pred = inside_union(grid_points(target.shape[0]), prims)
-    t = target.reshape(-1)
-    union = np.count_nonzero(pred | t)
-    return float(np.count_nonzero(pred & t) / union) if union else 1.0
-
-
 def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                     locked: Sequence[SweepPrimitive] = (),
                     callback: Callable[[FitProgress], None] | None = None,
                     cancel: threading.Event | None = None) -> FitResult:
-    """Fit sweep primitives to a shape; the best of `restarts` seeds by grid IoU.
+    """Fit sweep primitives to a shape: for each of `restarts` seeds, the network stage,
+    then direct refinement and pruning (sweepedit.fitting.refine); the best seed by IoU
+    over the grid cells and near-surface samples.
 
     Locked primitives are kept unchanged and come first in the result.
     """
@@ -276,7 +283,14 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     if not target.any():
         raise SweepeditError(f"{shape.path}: the shape has no volume to fit (empty occupancy)")
     best: tuple[float, list[SweepPrimitive], dict[str, float]] | None = None
-    total_iterations = settings.iterations * settings.restarts
+    scoring = ScoringPoints(shape.winding_occupancy, shape.samples.points[: shape.samples.n_near],
+                            shape.samples.labels[: shape.samples.n_near], locked)
+    refine = RefineSettings(iterations=settings.refine_iterations,
+                            start_sharpness=settings.sharpness,
+                            residual_rounds=settings.residual_rounds if settings.refine_iterations
+                            else 0, residual_iterations=settings.refine_iterations // 2)
+    per_restart = settings.iterations + refine.total_steps
+    total_iterations = per_restart * settings.restarts
 
     def make_abstraction(prims: list[SweepPrimitive]) -> Abstraction:
         named = []
@@ -302,7 +316,7 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                 current = run.snapshot()
                 if current is not None:
                     best_loss, best_snap = losses["reconstruction"], current
-            done = restart * settings.iterations + it + 1
+            done = restart * per_restart + it + 1
             if callback and (it % settings.progress_every == 0 or it == settings.iterations - 1):
                 current = run.snapshot() or best_snap
                 if current is not None:
@@ -311,10 +325,26 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
         if best_snap is None:
             continue
         prims = run.primitives(*best_snap, final=True)
-        # Restarts are compared by IoU on the fitting grid; a cancelled single run has
-        # nothing to compare and returns at once.
-        score = (_grid_iou(list(locked) + prims, target)
-                 if settings.restarts > 1 or not cancel.is_set() else math.nan)
+        if cancel.is_set():
+            # A cancelled run returns at once: no refinement, and a single run has
+            # nothing to be compared with, so it is not scored either.
+            score = scoring.score(scoring.occupancy(prims).any(axis=0)) \
+                if settings.restarts > 1 else math.nan
+        else:
+            def on_refine_step(step: int, refine_losses: dict[str, float],
+                               current: list[SweepPrimitive], restart: int = restart,
+                               losses: dict[str, float] = losses) -> None:
+                if callback:
+                    done = restart * per_restart + settings.iterations + step + 1
+                    callback(FitProgress(done, total_iterations, restart,
+                                         {**losses, **refine_losses},
+                                         make_abstraction([p.copy() for p in current])))
+
+            prims, score = refine_primitives(prims, run.layout, scoring, refine,
+                                             budget=settings.primitives,
+                                             seed=settings.seed + restart, cancel=cancel,
+                                             on_step=on_refine_step,
+                                             report_every=settings.progress_every)
         if best is None or score > best[0] or math.isnan(best[0]):
             best = (score, prims, losses)
 
@@ -327,6 +357,6 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     record: dict[str, Any] = {k: v for k, v in asdict(settings).items() if k != "weights"}
     record.update({"weights": asdict(settings.weights), "seconds": round(seconds, 3),
                    "cancelled": cancel.is_set(), "locked": len(locked),
-                   "grid_iou": None if math.isnan(iou) else round(iou, 6)})
+                   "fit_iou": None if math.isnan(iou) else round(iou, 6)})
     abstraction.fit = record
     return FitResult(abstraction, seconds, losses, iou, cancel.is_set())

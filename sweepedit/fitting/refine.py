@@ -1,0 +1,281 @@
+"""Refinement: the fitted primitives' parameters optimised directly against the shape.
+
+The network stage of the fit (fit.py) finds the structure: which primitives, roughly
+where. Two things limit how closely it follows the shape. Its sweeper is soft (a
+boundary band about a voxel wide), so a thin limb comes out fatter than the soft
+occupancy suggests once it is swept exactly; and its samples lie near the shape's
+surface or uniformly in the cube, so a primitive that bulges far out of the shape is
+seen by only a few of them. Refinement takes the kept primitives and optimises their
+parameters themselves (through the unconstrained form of ParamLayout, so they stay in
+range) with Adam on the binary cross-entropy of the soft union:
+
+- on the points where the result is decided: the cell centres of the fitting grid within
+  `band` cells of the shape or of the current abstraction (labelled by the shape's
+  inside test at the cell centres), plus the near-surface fitting samples;
+- with the analytic sweeper's sharpness annealed geometrically towards the exact test
+  (the neural sweeper has no sharpness to anneal, so refinement always uses the
+  analytic one);
+- the band is recomputed, and the result scored, with the exact inside test every
+  `refresh` steps; the best state by that score is what is returned.
+
+Then `prune` drops, one at a time, every primitive whose removal does not lower the
+score: redundant primitives cost the user attention and buy nothing.
+
+The score is the IoU over the labelled points (grid cells and near-surface samples):
+the grid IoU of DESIGN.md section 3, with the thin parts that fall between cell centres
+counted too.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy import ndimage as ndi
+
+from sweepedit.analysis.metrics import iou
+from sweepedit.analysis.skeleton import compute_skeleton
+from sweepedit.fitting.losses import boltzmann_union
+from sweepedit.fitting.params import ParamLayout
+from sweepedit.fitting.sweepers import AnalyticSweeper
+from sweepedit.fitting.warmstart import warm_start_primitives
+from sweepedit.geometry.inside import grid_points, inside_primitives
+from sweepedit.geometry.model import SweepPrimitive
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """How to refine: steps, Adam's step on the unconstrained parameters, the sharpness
+    schedule (from `start_sharpness`, times `sharpness_gain` by the end), points per step
+    (`cells` grid cells, `samples` near-surface samples), band width in cells, how
+    often (steps) the band and the score are recomputed, and what a primitive must add
+    to the score to be kept."""
+
+    iterations: int = 150
+    learning_rate: float = 0.02
+    start_sharpness: float = 100.0
+    sharpness_gain: float = 8.0
+    cells: int = 4096
+    samples: int = 2048
+    band: int = 2
+    refresh: int = 25
+    # A primitive must add more than this to the score to be kept (see `prune`).
+    min_gain: float = 0.001
+    # Rounds that add primitives for missed parts (while the budget allows), and the
+    # steps of each.
+    residual_rounds: int = 2
+    residual_iterations: int = 75
+
+    @property
+    def total_steps(self) -> int:
+        """Steps of refinement at most (first pass and every residual round)."""
+        return self.iterations + self.residual_rounds * self.residual_iterations
+
+
+class ScoringPoints:
+    """The labelled points that refinement fits and scores: grid cell centres and the
+    near-surface samples.
+
+    grid_target (R, R, R) bool: the shape's inside test at the cell centres.
+    samples (S, 3) float and sample_labels (S,) float in {0, 1}: near-surface samples.
+    locked: primitives that stay fixed; their exact occupancy is computed once.
+    """
+
+    def __init__(self, grid_target: np.ndarray, samples: np.ndarray,
+                 sample_labels: np.ndarray, locked: Sequence[SweepPrimitive] = ()) -> None:
+        self.resolution = grid_target.shape[0]
+        self.grid_target = np.asarray(grid_target, dtype=bool)
+        self.cells = grid_points(self.resolution)  # (R^3, 3)
+        self.points = np.concatenate([self.cells, np.asarray(samples, dtype=np.float64)])
+        self.labels = np.concatenate([self.grid_target.reshape(-1),
+                                      np.asarray(sample_labels) > 0.5])
+        self.n_cells = self.cells.shape[0]
+        self.locked = (inside_primitives(self.points, locked).any(axis=0) if locked
+                       else np.zeros(len(self.points), dtype=bool))
+
+    def occupancy(self, primitives: Sequence[SweepPrimitive]) -> np.ndarray:
+        """Exact occupancy of each primitive at every point: (K, N) bool."""
+        return inside_primitives(self.points, primitives)
+
+    def score(self, covered: np.ndarray) -> float:
+        """IoU over all the points of a union's occupancy covered (N,) bool (locked added)."""
+        return iou(covered | self.locked, self.labels)
+
+    def grid_iou(self, covered: np.ndarray) -> float:
+        """IoU on the grid cells alone (DESIGN.md section 3) of covered (N,) bool."""
+        return iou((covered | self.locked)[: self.n_cells], self.labels[: self.n_cells])
+
+    def band_cells(self, covered: np.ndarray, width: int) -> np.ndarray:
+        """Flat indices of the cells within `width` cells of the shape or of the union
+        covered (N,) bool: where the result is decided."""
+        grid = covered[: self.n_cells].reshape(self.grid_target.shape) | self.grid_target
+        return np.flatnonzero(ndi.binary_dilation(grid, iterations=width))
+
+
+def prune(occupancy: np.ndarray, points: ScoringPoints, min_gain: float = 0.0) -> list[int]:
+    """Indices of the primitives to keep: drop, one at a time, the primitive whose removal
+    costs the least score, while that cost is at most min_gain. occupancy (K, N) bool."""
+    keep = list(range(occupancy.shape[0]))
+    current = points.score(occupancy[keep].any(axis=0))
+    while len(keep) > 1:
+        scores = [points.score(occupancy[[j for j in keep if j != i]].any(axis=0))
+                  for i in keep]
+        best = int(np.argmax(scores))
+        if current - scores[best] > min_gain:
+            break
+        current = scores[best]
+        del keep[best]
+    return keep
+
+
+def missed_parts(points: ScoringPoints, covered: np.ndarray, min_cells: int) -> np.ndarray:
+    """(R, R, R) bool: the cells of the shape that the union covered (N,) bool misses,
+    in 26-connected pieces of at least min_cells cells."""
+    missed = points.grid_target & ~(covered | points.locked)[: points.n_cells].reshape(
+        points.grid_target.shape)
+    labels, n = ndi.label(missed, np.ones((3, 3, 3), dtype=bool))
+    if n == 0:
+        return missed
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)
+    big = np.flatnonzero(sizes >= min_cells)
+    return np.isin(labels, big[big > 0])
+
+
+def residual_primitives(points: ScoringPoints, covered: np.ndarray, budget: int,
+                        layout: ParamLayout, min_cells: int = 12) -> list[SweepPrimitive]:
+    """Up to `budget` new primitives, warm-started (as the fit's warm start is) from the
+    medial axis of the parts of the shape that the union covered (N,) bool misses."""
+    if budget <= 0:
+        return []
+    missed = missed_parts(points, covered, min_cells)
+    if not missed.any():
+        return []
+    skeleton = compute_skeleton(missed)
+    return warm_start_primitives(skeleton.branches, budget, layout.n_control_points,
+                                 layout.n_scaling)
+
+
+StepCallback = Callable[[int, dict[str, float], list[SweepPrimitive]], None]
+
+
+def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
+                      points: ScoringPoints, settings: RefineSettings | None = None, *,
+                      budget: int | None = None, seed: int = 0,
+                      cancel: threading.Event | None = None,
+                      on_step: StepCallback | None = None,
+                      report_every: int = 10) -> tuple[list[SweepPrimitive], float]:
+    """Refine primitives (all of `layout`) against the scoring points and prune them; then,
+    while fewer than `budget` (default: as many as given) are left, add primitives for
+    the biggest missed parts (`residual_primitives`) and refine and prune again, for up to
+    `settings.residual_rounds` rounds.
+
+    on_step(step, losses, current primitives) is called every `report_every` steps and
+    at the last step of each pass; steps count on across the passes, up to
+    `settings.total_steps`. Returns the best primitives found (never worse by the score
+    than the input) and their score.
+    """
+    settings = settings or RefineSettings()
+    cancel = cancel or threading.Event()
+    budget = len(primitives) if budget is None else budget
+    rng = np.random.default_rng(seed)
+    prims, occupancy = _refine_pass(list(primitives), layout, points, settings,
+                                    settings.iterations, rng, cancel, on_step, 0, report_every)
+    offset = settings.iterations
+    for _ in range(settings.residual_rounds):
+        if cancel.is_set() or len(prims) >= budget:
+            break
+        new = residual_primitives(points, occupancy.any(axis=0), budget - len(prims), layout)
+        if not new:
+            break
+        prims, occupancy = _refine_pass(prims + new, layout, points, settings,
+                                        settings.residual_iterations, rng, cancel, on_step,
+                                        offset, report_every)
+        offset += settings.residual_iterations
+    return prims, points.score(occupancy.any(axis=0))
+
+
+def _refine_pass(prims: list[SweepPrimitive], layout: ParamLayout, points: ScoringPoints,
+                 settings: RefineSettings, iterations: int, rng: np.random.Generator,
+                 cancel: threading.Event, on_step: StepCallback | None, offset: int,
+                 report_every: int) -> tuple[list[SweepPrimitive], np.ndarray]:
+    """One pass of Adam on the primitives' parameters, then `prune`: the kept primitives
+    of the best state seen and their exact occupancy (K', N) bool."""
+    occupancy = points.occupancy(prims)
+    best_score, best_prims, best_occupancy = points.score(occupancy.any(axis=0)), prims, occupancy
+    if not prims:
+        return prims, occupancy
+    logits = layout.to_unconstrained(layout.from_primitives(prims, dtype=torch.float32))
+    logits = logits.clone().requires_grad_(True)
+    optimizer = torch.optim.Adam([logits], lr=settings.learning_rate)
+    sweeper = AnalyticSweeper(sharpness=settings.start_sharpness)
+    sweeper.layout = layout
+    all_points = torch.as_tensor(points.points, dtype=torch.float32)
+    all_labels = torch.as_tensor(points.labels, dtype=torch.float32)
+    locked = torch.as_tensor(points.locked, dtype=torch.float32)
+    n_samples = len(points.points) - points.n_cells
+    band = points.band_cells(occupancy.any(axis=0), settings.band)
+    for step in range(iterations):
+        if cancel.is_set():
+            break
+        progress = step / max(iterations - 1, 1)
+        sweeper.sharpness = settings.start_sharpness * settings.sharpness_gain ** progress
+        index = band[rng.integers(0, len(band), settings.cells)]
+        if n_samples:
+            index = np.concatenate([index, points.n_cells
+                                    + rng.integers(0, n_samples, settings.samples)])
+        idx = torch.as_tensor(index)
+        loss = _step_loss(sweeper, layout, logits, all_points[idx], all_labels[idx], locked[idx])
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if torch.isfinite(loss) and bool(torch.isfinite(logits.grad).all()):
+            optimizer.step()
+        last = step == iterations - 1
+        if (step + 1) % settings.refresh == 0 or last:
+            current = _valid_primitives(layout, logits.detach(), prims)
+            if current is not None:
+                occupancy = points.occupancy(current)
+                covered = occupancy.any(axis=0)
+                score = points.score(covered)
+                if score > best_score:
+                    best_score, best_prims, best_occupancy = score, current, occupancy
+                band = points.band_cells(covered, settings.band)
+        if on_step is not None and (step % report_every == 0 or last):
+            on_step(offset + step, {"refine": float(loss.detach())},
+                    _valid_primitives(layout, logits.detach(), prims) or best_prims)
+    keep = prune(best_occupancy, points, settings.min_gain)
+    return [best_prims[i] for i in keep], best_occupancy[keep]
+
+
+def _step_loss(sweeper: AnalyticSweeper, layout: ParamLayout, logits: torch.Tensor,
+               queries: torch.Tensor, labels: torch.Tensor, locked: torch.Tensor) -> torch.Tensor:
+    """BCE of the soft union (locked primitives as a fixed member) at queries (Q, 3)."""
+    params = layout.from_unconstrained(logits)  # (K, P)
+    occupancy = sweeper(params[None], queries[None])  # (1, K, Q)
+    occupancy = torch.cat([occupancy, locked[None, None]], dim=1)
+    union = boltzmann_union(occupancy, torch.ones(1, occupancy.shape[1]))
+    eps = 1e-5
+    return torch.nn.functional.binary_cross_entropy(union[0].clamp(eps, 1 - eps), labels)
+
+
+def _valid_primitives(layout: ParamLayout, logits: torch.Tensor,
+                      template: Sequence[SweepPrimitive]) -> list[SweepPrimitive] | None:
+    """The primitives of logits (K, P), with the template's names, colours and flags; None
+    if any value is not finite or any primitive fails validation."""
+    if not bool(torch.isfinite(logits).all()):
+        return None
+    out = []
+    for new, old in zip(layout.to_primitives(layout.from_unconstrained(logits).double()),
+                        template, strict=True):
+        new.name, new.color, new.visible, new.locked = old.name, old.color, old.visible, \
+            old.locked
+        try:
+            new.validate()
+        except ValueError:
+            return None
+        out.append(new)
+    return out
+
+

@@ -1,0 +1,115 @@
+"""Refinement: pruning by score, residual primitives, direct refinement of a known sweep."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sweepedit.fitting.params import ParamLayout
+from sweepedit.fitting.refine import (
+    RefineSettings,
+    ScoringPoints,
+    missed_parts,
+    prune,
+    refine_primitives,
+    residual_primitives,
+)
+from sweepedit.geometry.inside import grid_points, inside_primitive
+from sweepedit.geometry.mesher import sweep_mesh
+from sweepedit.geometry.model import SweepPrimitive
+
+RES = 32
+BAR_X = SweepPrimitive([[-0.35, 0.0, 0.0], [0.0, 0.0, 0.0], [0.35, 0.0, 0.0]], a=0.06, b=0.06)
+BAR_Y = SweepPrimitive([[0.2, -0.35, 0.1], [0.2, 0.0, 0.1], [0.2, 0.35, 0.1]], a=0.05, b=0.05)
+ARCH = SweepPrimitive([[-0.35, -0.1, 0.0], [0.0, 0.3, 0.05], [0.35, -0.1, 0.0]], a=0.08,
+                      b=0.06, degree=2.5, scaling=(0.2, -0.3))
+
+
+def truth_points(primitives: list[SweepPrimitive], res: int = RES,
+                 n_samples: int = 4000) -> ScoringPoints:
+    """Scoring points labelled by the exact inside test of the true primitives: the grid,
+    and points jittered off their surfaces."""
+    rng = np.random.default_rng(1)
+    grid = np.zeros(res**3, dtype=bool)
+    surface = []
+    for p in primitives:
+        grid |= inside_primitive(grid_points(res), p)
+        mesh = sweep_mesh(p, 48, 32)
+        surface.append(mesh.vertices[rng.integers(0, len(mesh.vertices), n_samples)])
+    samples = np.concatenate(surface)
+    samples = samples + rng.normal(scale=0.6 / res, size=samples.shape)
+    labels = np.zeros(len(samples), dtype=bool)
+    for p in primitives:
+        labels |= inside_primitive(samples, p)
+    return ScoringPoints(grid.reshape((res,) * 3), samples, labels.astype(np.float32))
+
+
+def test_prune_drops_what_adds_nothing_and_keeps_what_counts() -> None:
+    points = truth_points([BAR_X, BAR_Y])
+    inside_x = inside_primitive(points.points, BAR_X)
+    inside_y = inside_primitive(points.points, BAR_Y)
+    part_of_x = inside_x & (points.points[:, 0] < 0.0)  # a primitive inside BAR_X: redundant
+    occupancy = np.stack([inside_x, part_of_x, inside_y])
+    assert prune(occupancy, points) == [0, 2]
+    # A primitive covering nothing of the shape but some empty space lowers the score and
+    # goes; one that is the only cover of a bar stays even at a high bar.
+    stray = np.zeros_like(inside_x)
+    stray[points.points[:, 2] > 0.45] = True
+    assert prune(np.stack([inside_x, stray, inside_y]), points) == [0, 2]
+    assert prune(np.stack([inside_x, inside_y]), points, min_gain=0.05) == [0, 1]
+    # With min_gain above what a bar adds, the smaller bar goes too.
+    share_y = points.score(inside_x | inside_y) - points.score(inside_x)
+    assert 0.0 < share_y < 0.9
+    assert prune(np.stack([inside_x, inside_y]), points, min_gain=share_y + 1e-6) == [0]
+
+
+def test_missed_parts_ignore_specks_and_residuals_follow_the_missed_bar() -> None:
+    points = truth_points([BAR_X, BAR_Y])
+    covered = inside_primitive(points.points, BAR_X)
+    missed = missed_parts(points, covered, min_cells=12)
+    bar_y_cells = points.grid_target & ~covered[: points.n_cells].reshape(points.grid_target.shape)
+    assert missed.sum() == pytest.approx(bar_y_cells.sum(), rel=0.2)
+    assert not missed_parts(points, covered, min_cells=int(bar_y_cells.sum()) + 1).any()
+    layout = ParamLayout()
+    new = residual_primitives(points, covered, budget=3, layout=layout)
+    assert 1 <= len(new) <= 3
+    axis = np.concatenate([p.control_points for p in new])
+    # Along y at x = 0.2, z = 0.1 (within a couple of cells), and spanning most of it.
+    np.testing.assert_allclose(axis[:, [0, 2]], np.tile([0.2, 0.1], (len(axis), 1)),
+                               atol=2.5 / RES)
+    assert np.ptp(axis[:, 1]) > 0.4
+    assert residual_primitives(points, covered, budget=0, layout=layout) == []
+
+
+def test_refinement_recovers_a_perturbed_sweep() -> None:
+    points = truth_points([ARCH])
+    start = ARCH.copy()
+    start.control_points = start.control_points + np.array([0.03, -0.04, 0.02])
+    start.a, start.b, start.degree, start.scaling = 0.12, 0.04, 2.0, (0.0, 0.0)
+    start_score = points.score(inside_primitive(points.points, start))
+    settings = RefineSettings(iterations=120, cells=2048, samples=1024, residual_rounds=0)
+    refined, score = refine_primitives([start], ParamLayout(), points, settings, seed=0)
+    assert len(refined) == 1
+    refined[0].validate()
+    assert score == pytest.approx(points.score(inside_primitive(points.points, refined[0])))
+    assert start_score < 0.7
+    assert score > 0.9, (start_score, score)
+    # Judged on a finer grid than it was fitted on, against the exact test of the truth.
+    fine = grid_points(48)
+    truth, got = inside_primitive(fine, ARCH), inside_primitive(fine, refined[0])
+    assert np.count_nonzero(truth & got) / np.count_nonzero(truth | got) > 0.85
+
+
+def test_refinement_keeps_locked_primitives_out_and_is_never_worse() -> None:
+    points_all = truth_points([BAR_X, BAR_Y])
+    points = ScoringPoints(points_all.grid_target, points_all.points[points_all.n_cells:],
+                           points_all.labels[points_all.n_cells:].astype(np.float32),
+                           locked=[BAR_X])
+    assert points.locked.any()
+    # BAR_Y itself is already the best answer: refinement may not make it worse.
+    before = points.score(inside_primitive(points.points, BAR_Y))
+    refined, score = refine_primitives([BAR_Y], ParamLayout(), points,
+                                       RefineSettings(iterations=30, residual_rounds=0))
+    assert score >= before - 1e-12
+    assert before > 0.9
+    assert len(refined) == 1
