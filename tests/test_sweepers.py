@@ -123,6 +123,24 @@ def test_analytic_gradcheck_float64():
     assert torch.autograd.gradcheck(sweeper, (p, q), eps=1e-6, atol=1e-5)
 
 
+def test_neural_gradcheck_float64(neural):
+    """Finite differences on the trained network, in float64, on a few near-surface queries:
+    its gradients to the parameters (through the key points) and to the queries are right.
+    The neighbour choice is discrete; steps of 1e-6 do not change it here."""
+    net = build_neural(neural.config)
+    net.load_state_dict(neural.state_dict())
+    net = net.double().eval()
+    p = _params([[-0.3, 0.1, 0.0], [0.0, 0.3, 0.2], [0.3, -0.1, 0.1]], 0.15, 0.1, 2.6,
+                (0.2, -0.3), dtype=torch.float64)[None, None].requires_grad_(True)
+    candidates = _near_queries(p[0].detach(), 300, seed=1).double()
+    with torch.no_grad():
+        occ = net(p, candidates[None])[0, 0]
+    # The trained network is sharp: check it where its output varies, on the boundary.
+    q = candidates[torch.argsort((occ - 0.5).abs())[:4]][None].requires_grad_(True)
+    assert ((net(p, q) > 0.05) & (net(p, q) < 0.95)).all()
+    assert torch.autograd.gradcheck(net, (p, q), eps=1e-6, atol=1e-5, rtol=1e-3)
+
+
 @pytest.mark.parametrize("kind", ["analytic", "neural"])
 def test_gradients_finite_across_the_ranges(kind):
     sweeper = load_sweeper(kind)
