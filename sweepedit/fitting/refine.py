@@ -68,6 +68,8 @@ class RefineSettings:
     # steps of each.
     residual_rounds: int = 2
     residual_iterations: int = 75
+    # Missed pieces smaller than this (cells) get no primitive of their own.
+    min_missed_cells: int = 12
 
     @property
     def total_steps(self) -> int:
@@ -119,16 +121,20 @@ def prune(occupancy: np.ndarray, points: ScoringPoints, min_gain: float = 0.0) -
     """Indices of the primitives to keep: drop, one at a time, the primitive whose removal
     costs the least score, while that cost is at most min_gain. occupancy (K, N) bool."""
     keep = list(range(occupancy.shape[0]))
-    current = points.score(occupancy[keep].any(axis=0))
     while len(keep) > 1:
-        scores = [points.score(occupancy[[j for j in keep if j != i]].any(axis=0))
-                  for i in keep]
-        best = int(np.argmax(scores))
-        if current - scores[best] > min_gain:
+        costs = removal_costs(occupancy[keep], points)
+        cheapest = int(np.argmin(costs))
+        if costs[cheapest] > min_gain:
             break
-        current = scores[best]
-        del keep[best]
+        del keep[cheapest]
     return keep
+
+
+def removal_costs(occupancy: np.ndarray, points: ScoringPoints) -> np.ndarray:
+    """(K,) how much the score drops without each primitive; occupancy (K, N) bool."""
+    full = points.score(occupancy.any(axis=0))
+    return np.array([full - points.score(np.delete(occupancy, i, axis=0).any(axis=0))
+                     for i in range(occupancy.shape[0])])
 
 
 def missed_parts(points: ScoringPoints, covered: np.ndarray, min_cells: int) -> np.ndarray:
@@ -144,14 +150,11 @@ def missed_parts(points: ScoringPoints, covered: np.ndarray, min_cells: int) -> 
     return np.isin(labels, big[big > 0])
 
 
-def residual_primitives(points: ScoringPoints, covered: np.ndarray, budget: int,
-                        layout: ParamLayout, min_cells: int = 12) -> list[SweepPrimitive]:
-    """Up to `budget` new primitives, warm-started (as the fit's warm start is) from the
-    medial axis of the parts of the shape that the union covered (N,) bool misses."""
-    if budget <= 0:
-        return []
-    missed = missed_parts(points, covered, min_cells)
-    if not missed.any():
+def residual_primitives(missed: np.ndarray, budget: int,
+                        layout: ParamLayout) -> list[SweepPrimitive]:
+    """Up to `budget` new primitives for the missed cells (R, R, R) bool (`missed_parts`),
+    warm-started as the fit's warm start is: from their medial axis."""
+    if budget <= 0 or not missed.any():
         return []
     skeleton = compute_skeleton(missed)
     return warm_start_primitives(skeleton.branches, budget, layout.n_control_points,
@@ -168,9 +171,11 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
                       on_step: StepCallback | None = None,
                       report_every: int = 10) -> tuple[list[SweepPrimitive], float]:
     """Refine primitives (all of `layout`) against the scoring points and prune them; then,
-    while fewer than `budget` (default: as many as given) are left, add primitives for
-    the biggest missed parts (`residual_primitives`) and refine and prune again, for up to
-    `settings.residual_rounds` rounds.
+    for up to `settings.residual_rounds` rounds, try to cover the missed parts: while
+    fewer than `budget` (default: as many as given) are kept, add primitives for the
+    biggest missed parts (`residual_primitives`); at the budget, swap the primitive that
+    adds least for one on the biggest missed part. Each trial is refined and pruned, and
+    kept only if it raises the score.
 
     on_step(step, losses, current primitives) is called every `report_every` steps and
     at the last step of each pass; steps count on across the passes, up to
@@ -185,15 +190,31 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
                                     settings.iterations, rng, cancel, on_step, 0, report_every)
     offset = settings.iterations
     for _ in range(settings.residual_rounds):
-        if cancel.is_set() or len(prims) >= budget:
+        if cancel.is_set() or not prims:
             break
-        new = residual_primitives(points, occupancy.any(axis=0), budget - len(prims), layout)
-        if not new:
+        covered = occupancy.any(axis=0)
+        missed = missed_parts(points, covered, settings.min_missed_cells)
+        free = budget - len(prims)
+        if free > 0:
+            trial = prims + residual_primitives(missed, free, layout)
+        else:
+            # At the budget: swap the primitive that adds least for one on the biggest
+            # missed part, when that part could add more than the primitive does.
+            costs = removal_costs(occupancy, points)
+            victim = int(np.argmin(costs))
+            union = (covered | points.locked | points.labels)[: points.n_cells]
+            gain_bound = np.count_nonzero(missed) / max(np.count_nonzero(union), 1)
+            new = residual_primitives(missed, 1, layout) if gain_bound > costs[victim] else []
+            trial = [p for i, p in enumerate(prims) if i != victim] + new if new else prims
+        if trial is prims:
             break
-        prims, occupancy = _refine_pass(prims + new, layout, points, settings,
-                                        settings.residual_iterations, rng, cancel, on_step,
-                                        offset, report_every)
+        trial_prims, trial_occupancy = _refine_pass(trial, layout, points, settings,
+                                                    settings.residual_iterations, rng, cancel,
+                                                    on_step, offset, report_every)
         offset += settings.residual_iterations
+        if points.score(trial_occupancy.any(axis=0)) <= points.score(covered):
+            break  # the next round would try much the same again
+        prims, occupancy = trial_prims, trial_occupancy
     return prims, points.score(occupancy.any(axis=0))
 
 
