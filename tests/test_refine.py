@@ -71,14 +71,14 @@ def test_missed_parts_ignore_specks_and_residuals_follow_the_missed_bar() -> Non
     assert missed.sum() == pytest.approx(bar_y_cells.sum(), rel=0.2)
     assert not missed_parts(points, covered, min_cells=int(bar_y_cells.sum()) + 1).any()
     layout = ParamLayout()
-    new = residual_primitives(points, covered, budget=3, layout=layout)
+    new = residual_primitives(missed, budget=3, layout=layout)
     assert 1 <= len(new) <= 3
     axis = np.concatenate([p.control_points for p in new])
     # Along y at x = 0.2, z = 0.1 (within a couple of cells), and spanning most of it.
     np.testing.assert_allclose(axis[:, [0, 2]], np.tile([0.2, 0.1], (len(axis), 1)),
                                atol=2.5 / RES)
     assert np.ptp(axis[:, 1]) > 0.4
-    assert residual_primitives(points, covered, budget=0, layout=layout) == []
+    assert residual_primitives(missed, budget=0, layout=layout) == []
 
 
 def test_refinement_recovers_a_perturbed_sweep() -> None:
@@ -113,3 +113,22 @@ def test_refinement_keeps_locked_primitives_out_and_is_never_worse() -> None:
     assert score >= before - 1e-12
     assert before > 0.9
     assert len(refined) == 1
+
+
+def test_at_the_budget_a_primitive_is_swapped_for_a_bigger_missed_part() -> None:
+    fat = SweepPrimitive([[-0.35, 0.0, -0.15], [0.0, 0.0, -0.15], [0.35, 0.0, -0.15]],
+                         a=0.1, b=0.1)
+    thin = SweepPrimitive([[0.2, -0.35, 0.2], [0.2, 0.0, 0.2], [0.2, 0.35, 0.2]],
+                          a=0.04, b=0.04)
+    points = truth_points([fat, thin])
+    # One primitive allowed, sitting on the thin bar: the fat one is worth more.
+    settings = RefineSettings(iterations=10, residual_rounds=1, residual_iterations=60)
+    before = points.score(inside_primitive(points.points, thin))
+    refined, score = refine_primitives([thin], ParamLayout(), points, settings, budget=1)
+    assert len(refined) == 1
+    axis = refined[0].control_points
+    assert np.ptp(axis[:, 0]) > 0.4 and np.ptp(axis[:, 1]) < 0.1, axis
+    assert score > before
+    # With room for two, both bars are covered.
+    both, score_both = refine_primitives([thin], ParamLayout(), points, settings, budget=2)
+    assert len(both) == 2 and score_both > score
