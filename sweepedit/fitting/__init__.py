@@ -6,6 +6,12 @@ keypoints.py         875 key points per primitive (the neural sweeper's input)
 sweepers.py          Sweeper interface: AnalyticSweeper, NeuralSweeper, load_sweeper
 train_sweeper.py     training of the neural sweeper on random sweeps (exact labels)
 evaluate_sweeper.py  accuracy against the exact inside test, and speed
+network.py           SweepNet: voxel / point encoder, MLP, primitive and selection heads
+losses.py            reconstruction (Boltzmann union), overlap, parsimony, axis losses
+warmstart.py         primitives from the skeleton's branches
+fit.py               the per-shape fit: warm start, network stage, refinement, restarts
+refine.py            direct refinement of the fitted parameters, pruning, residual rounds
+bench.py             `sweepedit bench`: fit a folder of shapes, table and contact sheet
 """
 
 from sweepedit.fitting.keypoints import N_KEYPOINTS, sample_keypoints
