@@ -191,7 +191,7 @@ def _fit_settings(args: argparse.Namespace):
                        sweeper=args.sweeper, seed=args.seed, restarts=args.restarts,
                        control_points=args.control_points, scaling_degree=args.scaling_degree,
                        refine_iterations=args.refine_iterations,
-                       residual_rounds=args.residual_rounds)
+                       residual_rounds=args.residual_rounds, min_gain=args.min_gain)
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -294,6 +294,8 @@ def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
                    help="steps of direct refinement after the network stage; 0 skips it (150)")
     p.add_argument("--residual-rounds", type=int, default=2,
                    help="refinement rounds that add primitives where the shape is missed (2)")
+    p.add_argument("--min-gain", type=float, default=0.001,
+                   help="IoU a primitive must add to be kept; higher keeps fewer (0.001)")
     p.add_argument("--control-points", type=int, default=3, help="per axis (3)")
     p.add_argument("--scaling-degree", type=int, default=2, help="of f(t) (2)")
 

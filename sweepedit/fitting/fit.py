@@ -78,6 +78,9 @@ class FitSettings:
     # Rounds of refinement that add primitives where the shape is missed (each half as
     # long as the first pass), while fewer than `primitives` are kept.
     residual_rounds: int = 2
+    # What a primitive must add to the IoU to be kept after refinement: higher keeps
+    # fewer primitives.
+    min_gain: float = 0.001
 
     def validate(self) -> None:
         checks = [
@@ -85,6 +88,7 @@ class FitSettings:
             (self.iterations >= 1, "iterations must be at least 1"),
             (self.refine_iterations >= 0, "refine iterations must be >= 0"),
             (self.residual_rounds >= 0, "residual rounds must be >= 0"),
+            (0.0 <= self.min_gain < 1.0, "min gain must be in [0, 1)"),
             (self.restarts >= 1, "restarts must be at least 1"),
             (self.control_points >= 3, "control points must be at least 3"),
             (self.scaling_degree >= 0, "scaling degree must be >= 0"),
@@ -286,7 +290,7 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     scoring = ScoringPoints(shape.winding_occupancy, shape.samples.points[: shape.samples.n_near],
                             shape.samples.labels[: shape.samples.n_near], locked)
     refine = RefineSettings(iterations=settings.refine_iterations,
-                            start_sharpness=settings.sharpness,
+                            start_sharpness=settings.sharpness, min_gain=settings.min_gain,
                             residual_rounds=settings.residual_rounds if settings.refine_iterations
                             else 0, residual_iterations=settings.refine_iterations // 2)
     per_restart = settings.iterations + refine.total_steps

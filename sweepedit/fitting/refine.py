@@ -18,12 +18,18 @@ range) with Adam on the binary cross-entropy of the soft union:
 - the band is recomputed, and the result scored, with the exact inside test every
   `refresh` steps; the best state by that score is what is returned.
 
-Then `prune` drops, one at a time, every primitive whose removal does not lower the
-score: redundant primitives cost the user attention and buy nothing.
+Then `prune` drops, one at a time, every primitive whose removal costs at most
+`min_gain` of the score: primitives that add next to nothing cost the user attention.
+
+Last, residual rounds look at what the union misses: while the budget of primitives
+allows, new primitives are warm-started (as the fit's are, from the medial axis) on the
+biggest missed parts; at the budget, the primitive that adds least is swapped for one
+on the biggest missed part when that part could add more. Each round is refined and
+pruned again and kept only if it raises the score.
 
 The score is the IoU over the labelled points (grid cells and near-surface samples):
 the grid IoU of DESIGN.md section 3, with the thin parts that fall between cell centres
-counted too.
+and the surface detail counted too.
 """
 
 from __future__ import annotations
