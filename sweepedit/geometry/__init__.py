@@ -5,17 +5,12 @@ the fitting code can run the same math in torch.
 """
 
 from sweepedit.geometry.inside import grid_points, inside_primitive, inside_primitives, inside_union
-from sweepedit.geometry.mesher import (
-    TriangleMesh,
-    abstraction_union,
-    sweep_mesh,
-    sweep_meshes,
-    union_mesh,
-)
+from sweepedit.geometry.mesher import TriangleMesh, sweep_mesh, sweep_meshes, union_mesh
 from sweepedit.geometry.model import Abstraction, Normalization, SweepPrimitive, palette_color
+from sweepedit.geometry.solid import abstraction_union, solid_mesh, solid_union
 
 __all__ = [
     "Abstraction", "Normalization", "SweepPrimitive", "TriangleMesh", "abstraction_union",
     "grid_points", "inside_primitive", "inside_primitives", "inside_union", "palette_color",
-    "sweep_mesh", "sweep_meshes", "union_mesh",
+    "solid_mesh", "solid_union", "sweep_mesh", "sweep_meshes", "union_mesh",
 ]

@@ -4,6 +4,10 @@ Each primitive becomes a closed, outward-oriented mesh: a grid of `stations` pro
 rings along the axis, closed by flat fan caps at both ends. The topology depends only on
 the resolution, so it is built once per resolution and cached; sweeping a primitive is
 then a handful of vectorised numpy operations (fast enough for live dragging).
+
+This tube is for display: where a sweep folds onto itself its rings cross and the tube
+turns inside-out locally. The mesh of the true solid, for export and booleans, is
+solid.py's.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from sweepedit.geometry.model import Abstraction, SweepPrimitive
+from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import _cross, axis_frames, scaling_factor, superellipse
 
 DISPLAY_STATIONS = 64
@@ -148,8 +152,10 @@ def sweep_meshes(primitives: Sequence[SweepPrimitive], stations: int = DISPLAY_S
 def union_mesh(meshes: Sequence[TriangleMesh]) -> TriangleMesh:
     """The boolean union of closed meshes as one watertight mesh (manifold3d).
 
-    Sweeps that bend tighter than their profile self-intersect; manifold3d resolves
-    such meshes as long as they are closed and consistently oriented, which ours are.
+    Each mesh must bound its solid: manifold3d does not resolve a mesh that overlaps
+    itself, and a sweep that folds onto itself (its profile reaching past the axis'
+    centre of curvature) turns inside-out locally. For the solids of primitives use
+    solid.solid_union, which cuts such sweeps into pieces that each bound their solid.
     """
     import manifold3d as m3d
 
@@ -172,11 +178,3 @@ def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     for c in range(3):
         np.add.at(vn, faces[:, c], fn)
     return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
-
-
-def abstraction_union(abstraction: Abstraction, stations: int = DISPLAY_STATIONS,
-                      profile_points: int = DISPLAY_PROFILE_POINTS,
-                      visible_only: bool = True) -> TriangleMesh:
-    """The union of an abstraction's (visible) primitives as one watertight mesh."""
-    prims = abstraction.visible() if visible_only else abstraction.primitives
-    return union_mesh(sweep_meshes(prims, stations, profile_points))

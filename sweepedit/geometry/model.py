@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from sweepedit.errors import InvalidPrimitiveError
-from sweepedit.geometry.sweep import axis_curvature, scaling_factor
+from sweepedit.geometry.sweep import fold_vectors, superellipse
 
 # Parameter ranges of DESIGN.md section 1.
 A_RANGE = (0.01, 0.5)
@@ -197,11 +197,12 @@ class Abstraction:
 
 
 def folds_onto_itself(primitive: SweepPrimitive, samples: int = 256) -> bool:
-    """True when the profile reaches past the axis' centre of curvature somewhere, so
-    the swept surface self-intersects on the inner side of a bend (the solid is still
-    well defined, but its mesh is not an embedding there)."""
+    """True when the profile reaches past the axis' centre of curvature somewhere: some
+    profile point o has f (o . κN) >= 1, so the sweep runs backwards there and the swept
+    surface self-intersects on the inner side of the bend (the solid is still well
+    defined, but the display tube is not its boundary there; solid.py meshes it)."""
     t = np.linspace(0.0, 1.0, samples)
-    kappa = axis_curvature(primitive.control_points[None], t)[0]
-    f = scaling_factor(np.asarray(primitive.scaling, dtype=np.float64).reshape(1, -1), t)[0]
-    reach = f * max(primitive.a, primitive.b)
-    return bool(np.any(reach * kappa >= 1.0))
+    q = fold_vectors(primitive.control_points[None],
+                     np.asarray(primitive.scaling, dtype=np.float64).reshape(1, -1), t)[0]
+    x, y = superellipse(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False), primitive.profile[None])
+    return bool(np.any(q @ np.stack([x[0], y[0]]) >= 1.0))

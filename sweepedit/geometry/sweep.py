@@ -225,3 +225,33 @@ def axis_curvature(control_points: Any, t: Any) -> Any:
     num = xp.sqrt(_dot(xp, _cross(xp, d1, d2), _cross(xp, d1, d2)))[..., 0]
     speed = xp.sqrt(_dot(xp, d1, d1))[..., 0]
     return num / xp.clip(speed, min=_EPS) ** 3
+
+
+def axis_curvature_vectors(control_points: Any, t: Any) -> Any:
+    """Curvature vectors κN = (s'' - (s''.T) T) / |s'|^2: (K, n, 3), t (M,) -> (K, M, 3).
+
+    Along rotation-minimising frames a profile offset o = x U + y V moves along T at
+    the rate |s'| (1 - f o.κN): where that turns negative the sweep folds onto itself.
+    """
+    xp = array_namespace(control_points, t)
+    p0, p1, p2 = bezier_segments(control_points)
+    j, u = _segment_index(xp, t, p0.shape[1])
+    a0, a1, a2 = (xp.take(p, j, axis=1) for p in (p0, p1, p2))
+    u3 = u[None, :, None]
+    d1 = 2.0 * ((1.0 - u3) * (a1 - a0) + u3 * (a2 - a1))
+    d2 = 2.0 * (a2 - 2.0 * a1 + a0)
+    speed2 = xp.clip(_dot(xp, d1, d1), min=_EPS)
+    return (d2 - d1 * _dot(xp, d2, d1) / speed2) / speed2
+
+
+def fold_vectors(control_points: Any, scaling: Any, t: Any) -> Any:
+    """q(t) = f (κN . U, κN . V): (K, n, 3), scaling (K, k), t (M,) -> (K, M, 2).
+
+    A profile point o = (x, y) moves along the axis at the rate 1 - o . q(t) relative to
+    the axis itself; where that is negative the sweep runs backwards and folds onto itself.
+    """
+    xp = array_namespace(control_points, t)
+    fr = axis_frames(control_points, t)
+    k = axis_curvature_vectors(control_points, t)
+    f = scaling_factor(scaling, t)[..., None]
+    return f * xp.concat([_dot(xp, fr.U, k), _dot(xp, fr.V, k)], axis=-1)

@@ -7,14 +7,9 @@ from pathlib import Path
 import numpy as np
 
 from sweepedit.errors import SweepeditError
-from sweepedit.geometry.mesher import (
-    DISPLAY_PROFILE_POINTS,
-    DISPLAY_STATIONS,
-    TriangleMesh,
-    sweep_meshes,
-    union_mesh,
-)
+from sweepedit.geometry.mesher import DISPLAY_PROFILE_POINTS, DISPLAY_STATIONS, TriangleMesh
 from sweepedit.geometry.model import Abstraction, Normalization
+from sweepedit.geometry.solid import solid_mesh, solid_union
 from sweepedit.io.params import atomic_write_bytes
 
 MESH_FORMATS = (".obj", ".ply", ".stl", ".glb")
@@ -51,21 +46,25 @@ def export_abstraction(abstraction: Abstraction, path: str | Path, *, per_primit
                        profile_points: int = DISPLAY_PROFILE_POINTS) -> list[Path]:
     """Write the union of the primitives (or one file per primitive) and return the paths.
 
-    Per-primitive files are named STEM_NN.EXT beside `path`, one per primitive in order.
+    Each file is the watertight mesh of the true solid (solid.py), also where a sweep
+    folds onto itself; stations and profile_points are the least resolution (tight bends
+    and sharp stars get more). Per-primitive files are named STEM_NN.EXT beside `path`,
+    one per primitive in order.
     """
     path = Path(path)
     mesh_format(path)
     if not abstraction.primitives:
         raise SweepeditError(f"{path}: the abstraction has no primitives to export")
-    meshes = sweep_meshes(abstraction.primitives, stations, profile_points)
-    if original_frame:
-        meshes = [_to_original(m, abstraction.normalization) for m in meshes]
+
+    def framed(mesh: TriangleMesh) -> TriangleMesh:
+        return _to_original(mesh, abstraction.normalization) if original_frame else mesh
+
     if not per_primitive:
-        write_mesh(union_mesh(meshes), path)
+        write_mesh(framed(solid_union(abstraction.primitives, stations, profile_points)), path)
         return [path]
     written = []
-    for i, (mesh, prim) in enumerate(zip(meshes, abstraction.primitives, strict=True)):
+    for i, prim in enumerate(abstraction.primitives):
         out = path.with_name(f"{path.stem}_{i:02d}{path.suffix}")
-        write_mesh(mesh, out, color=prim.color)
+        write_mesh(framed(solid_mesh(prim, stations, profile_points)), out, color=prim.color)
         written.append(out)
     return written
