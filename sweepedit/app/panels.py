@@ -623,7 +623,7 @@ class FitPanel(QWidget):
         super().__init__(parent)
         # FitSettings' defaults; not read from it, which would import torch (seconds).
         d = {"primitives": 8, "iterations": 300, "sweeper": "analytic", "seed": 0,
-             "restarts": 1}
+             "restarts": 1, "refine_iterations": 150}
         d.update(defaults or {})
         self.primitives = QSpinBox()
         self.primitives.setRange(1, 32)
@@ -633,6 +633,14 @@ class FitPanel(QWidget):
         self.iterations.setRange(1, 100000)
         self.iterations.setSingleStep(100)
         self.iterations.setValue(int(d["iterations"]))
+        self.refine_iterations = QSpinBox()
+        self.refine_iterations.setRange(0, 100000)
+        self.refine_iterations.setSingleStep(50)
+        self.refine_iterations.setValue(int(d["refine_iterations"]))
+        self.refine_iterations.setToolTip("steps of direct refinement of the primitives after "
+                                          "the network stage, and of each round that adds "
+                                          "primitives where the shape is missed (half as "
+                                          "many); 0 skips it")
         self.sweeper = QComboBox()
         self.sweeper.addItems(["analytic", "neural"])
         self.sweeper.setCurrentText(str(d["sweeper"]))
@@ -646,7 +654,12 @@ class FitPanel(QWidget):
 
         form = QFormLayout()
         form.addRow("Primitives", self.primitives)
-        form.addRow("Iterations", self.iterations)
+        # Network steps and refinement steps share a row (the panel stays short).
+        steps = QHBoxLayout()
+        steps.addWidget(self.iterations, 1)
+        steps.addWidget(QLabel("refine"))
+        steps.addWidget(self.refine_iterations, 1)
+        form.addRow("Iterations", steps)
         form.addRow("Sweeper", self.sweeper)
         form.addRow("Seed", self.seed)
         form.addRow("Restarts", self.restarts)
@@ -688,13 +701,15 @@ class FitPanel(QWidget):
 
     def values(self) -> dict[str, Any]:
         return {"primitives": self.primitives.value(), "iterations": self.iterations.value(),
+                "refine_iterations": self.refine_iterations.value(),
                 "sweeper": self.sweeper.currentText(), "seed": self.seed.value(),
                 "restarts": self.restarts.value()}
 
     def set_running(self, running: bool) -> None:
         self.start_button.setEnabled(not running)
         self.cancel_button.setEnabled(running)
-        for w in (self.primitives, self.iterations, self.sweeper, self.seed, self.restarts):
+        for w in (self.primitives, self.iterations, self.refine_iterations, self.sweeper,
+                  self.seed, self.restarts):
             w.setEnabled(not running)
 
     def begin(self, total: int) -> None:

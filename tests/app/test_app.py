@@ -810,3 +810,20 @@ def test_qt_calls_keep_python_reference_counts(qtbot) -> None:
     assert len(seen) >= 1900
     assert abs(sys.getrefcount(None) - none_before) < 200
     assert abs(sys.getrefcount(True) - true_before) < 200
+
+
+def test_fit_panel_values_become_fit_settings(qtbot) -> None:
+    from sweepedit.app.panels import FitPanel
+    from sweepedit.app.worker import make_settings
+    from sweepedit.fitting.fit import FitSettings
+
+    panel = FitPanel()
+    qtbot.addWidget(panel)
+    # The panel starts at FitSettings' own defaults (it keeps a copy to avoid importing
+    # torch at start-up: this catches the copy drifting).
+    defaults = make_settings(FitSettings, panel.values())
+    assert defaults == FitSettings()
+    panel.iterations.setValue(120)
+    panel.refine_iterations.setValue(0)
+    settings = make_settings(FitSettings, panel.values())
+    assert (settings.iterations, settings.refine_iterations) == (120, 0)
