@@ -7,6 +7,7 @@ it where a sweep folds onto itself; the solid mesh must not.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import igl
@@ -74,9 +75,13 @@ def _box(p: SweepPrimitive, pad: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _thickness(p: SweepPrimitive) -> float:
+    """The profile's area over its reach, at its smallest scale: b for an ellipse of
+    half-axes a > b, much less for a sharp star's spikes."""
     f = scaling_factor(np.asarray(p.scaling, dtype=np.float64).reshape(1, -1),
                        np.linspace(0.0, 1.0, 101))
-    return min(p.a, p.b) * float(f.min())
+    d = p.degree
+    area = 4.0 * p.a * p.b * math.gamma(1.0 + 1.0 / d) ** 2 / math.gamma(1.0 + 2.0 / d)
+    return area / (math.pi * max(p.a, p.b)) * float(f.min())
 
 
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])

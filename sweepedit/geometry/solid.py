@@ -60,7 +60,7 @@ COARSE_TURN = 0.3
 # Where the fold rate J drops below this, stations are MAX_TURN apart.
 NEAR_FOLD = 0.25
 # For a thin profile both steps shrink, so that the chord error reach * turn^2 / 8 stays
-# below this share of the thickness (thickness / reach = min(a, b) / max(a, b)).
+# below this share of the thickness.
 THICKNESS_ERROR = 0.004
 # A tube piece turns by less than this, so that it has no double normal (a chord normal
 # to the axis at both ends), along which two of its cross-sections far apart could meet.
@@ -122,9 +122,12 @@ def solid_stations(primitive: SweepPrimitive, stations: int = DISPLAY_STATIONS) 
     """
     cps, n = primitive.control_points, primitive.n_control_points
     # A chord between two rings cuts the arc a reach r sweeps by r turn^2 / 8; it must
-    # stay small beside the profile's thickness, so a thin profile needs finer steps.
-    thin = float(np.sqrt(8.0 * THICKNESS_ERROR * min(primitive.a, primitive.b)
-                         / max(primitive.a, primitive.b)))
+    # stay small beside the profile's thickness, so a thin profile needs finer steps. The
+    # thickness over the reach is taken as the profile's area over that of the circle of
+    # its reach: b / a for an ellipse, much less for a sharp star's spikes.
+    reach = max(primitive.a, primitive.b)
+    thickness = _superellipse_area(primitive.degree) * primitive.a * primitive.b / (np.pi * reach)
+    thin = float(np.sqrt(8.0 * THICKNESS_ERROR * thickness / reach))
     fine = _turning_stations(cps, min(MAX_TURN, thin))
     xy = np.stack(superellipse(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False),
                                primitive.profile[None]), axis=-1)[0]
@@ -211,12 +214,17 @@ def profile_angles(degree: float, points: int) -> np.ndarray:
     return angles
 
 
+def _superellipse_area(degree: float) -> float:
+    """Area of the superellipse with a = b = 1: 4 Γ(1 + 1/d)^2 / Γ(1 + 2/d)."""
+    return 4.0 * math.gamma(1.0 + 1.0 / degree) ** 2 / math.gamma(1.0 + 2.0 / degree)
+
+
 @lru_cache(maxsize=64)
 def solid_profile_points(degree: float, requested: int = DISPLAY_PROFILE_POINTS) -> int:
     """Points around the solid's profile polygon: at least `requested`, more (up to
     MAX_PROFILE_POINTS) until the polygon's area is within PROFILE_AREA_TOLERANCE of the
-    superellipse's, 4 Γ(1 + 1/d)^2 / Γ(1 + 2/d) a b; only sharp stars need more."""
-    exact = 4.0 * math.gamma(1.0 + 1.0 / degree) ** 2 / math.gamma(1.0 + 2.0 / degree)
+    superellipse's; only sharp stars need more."""
+    exact = _superellipse_area(degree)
     points = requested
     while points < MAX_PROFILE_POINTS:
         x, y = superellipse(profile_angles(degree, points), np.array([[1.0, 1.0, degree]]))
@@ -667,11 +675,13 @@ def _collapse_tiny_edges(vertices: np.ndarray, faces: np.ndarray,
                                            axis=1) < share * size], axis=0)
     if len(short) == 0:
         return vertices, faces
-    faces = faces.copy()
-    alive = np.ones(len(faces), dtype=bool)
-    for a, b in short:  # few
-        around = np.flatnonzero(alive & ((faces == a) | (faces == b)).any(axis=1))
-        merged = np.where(faces[around] == b, a, faces[around])
+    # Work on the faces that touch a short edge only (the loop below is per edge).
+    near = np.flatnonzero(np.isin(faces, short).any(axis=1))
+    sub = faces[near].copy()
+    alive = np.ones(len(sub), dtype=bool)
+    for a, b in short:
+        around = np.flatnonzero(alive & ((sub == a) | (sub == b)).any(axis=1))
+        merged = np.where(sub[around] == b, a, sub[around])
         flat = (merged[:, 0] == merged[:, 1]) | (merged[:, 1] == merged[:, 2]) \
             | (merged[:, 2] == merged[:, 0])
         kept = merged[~flat]
@@ -679,9 +689,13 @@ def _collapse_tiny_edges(vertices: np.ndarray, faces: np.ndarray,
                        axis=1)
         ring = ring[(ring == a).any(axis=1)]
         if len(ring) and np.all(np.unique(ring, axis=0, return_counts=True)[1] == 2):
-            faces[around] = merged
+            sub[around] = merged
             alive[around[flat]] = False
-    used, compact = np.unique(faces[alive], return_inverse=True)
+    faces = faces.copy()
+    faces[near] = sub
+    keep = np.ones(len(faces), dtype=bool)
+    keep[near[~alive]] = False
+    used, compact = np.unique(faces[keep], return_inverse=True)
     return vertices[used], compact.reshape(-1, 3)
 
 
