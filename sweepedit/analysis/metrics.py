@@ -17,7 +17,8 @@ from scipy.spatial import cKDTree
 
 from sweepedit.geometry.inside import grid_points, inside_primitive, inside_union
 from sweepedit.geometry.mesher import sweep_meshes
-from sweepedit.geometry.model import Abstraction, SweepPrimitive
+from sweepedit.geometry.model import Abstraction, SweepPrimitive, folds_onto_itself
+from sweepedit.geometry.solid import solid_mesh
 
 if TYPE_CHECKING:
     from sweepedit.io.shapes import Shape
@@ -57,12 +58,16 @@ def outer_surface_samples(primitives: Sequence[SweepPrimitive], count: int = N_S
     """Area-uniform samples on the union's outer surface: -> (count, 3).
 
     Each primitive's surface is sampled in proportion to its area; samples inside
-    another primitive are dropped, and the kept ones topped up to `count`.
+    another primitive are dropped, and the kept ones topped up to `count`. A primitive
+    that folds onto itself is sampled on the mesh of its solid: its display tube turns
+    inside-out there, with sheets inside the solid and none on the fold's outer side.
     """
     if not primitives:
         return np.zeros((0, 3))
     rng = np.random.default_rng(seed)
     meshes = sweep_meshes(primitives, _SAMPLE_STATIONS, _SAMPLE_PROFILE_POINTS)
+    meshes = [solid_mesh(p, _SAMPLE_STATIONS, _SAMPLE_PROFILE_POINTS) if folds_onto_itself(p)
+              else m for p, m in zip(primitives, meshes, strict=True)]
     vertices = np.concatenate([m.vertices for m in meshes])
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
     faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets, strict=True)])

@@ -47,7 +47,9 @@ def _cross(xp: Any, u: Any, v: Any) -> Any:
 
 
 def _normalize(xp: Any, v: Any, eps: float = _EPS) -> Any:
-    return v / xp.sqrt(_dot(xp, v, v) + eps * eps)
+    # Exactly unit for |v| >= eps (a tangent near a cusp is short but must stay unit);
+    # shorter vectors are divided by eps instead, which keeps gradients finite.
+    return v / xp.sqrt(xp.maximum(_dot(xp, v, v), xp.full_like(v[..., :1], eps * eps)))
 
 
 def bezier_segments(control_points: Any) -> tuple[Any, Any, Any]:
@@ -74,23 +76,51 @@ def _segment_index(xp: Any, t: Any, m: int) -> tuple[Any, Any]:
     return xp.astype(j, xp.int64), u
 
 
-def _minimal_rotation(xp: Any, a: Any, b: Any, u: Any, v: Any) -> tuple[Any, Any]:
-    """Rotate the frame vectors u and v by the smallest rotation taking unit a to unit b.
+def _segment_binormal(xp: Any, d0: Any, d1: Any) -> tuple[Any, Any]:
+    """Unit normal of a quadratic segment's plane, from its legs d0, d1 (..., 3).
 
+    -> n (..., 3) and planar (..., 1) bool, False where the legs are collinear to rounding
+    (then n is arbitrary). Taken from the control points, not from sampled tangents, so
+    it is the same exact axis at every sample of the segment.
+    """
+    n = _cross(xp, d0, d1)
+    nn = _dot(xp, n, n)
+    planar = nn > (64.0 * xp.finfo(n.dtype).eps) ** 2 * _dot(xp, d0, d0) * _dot(xp, d1, d1)
+    # Relative, not _normalize's absolute eps: a normal of length 1e-13 is still exact.
+    return n / xp.sqrt(xp.where(planar, nn, xp.ones_like(nn))), planar
+
+
+def _minimal_rotation(xp: Any, a: Any, b: Any, u: Any, v: Any,
+                      n: Any, planar: Any) -> tuple[Any, Any]:
+    """Rotate the frame (u, v) at unit tangent a by the smallest rotation taking a to b.
+
+    a, b: unit tangents of one quadratic segment, which is planar, so the turn is about
+    the segment's unit normal n (from _segment_binormal). For a turn below pi/2,
     R x = c x + w x x + w (w.x) / (1 + c), w = a x b, c = a.b (Rodrigues without
-    normalising the axis, so it stays smooth as a -> b). When b = -a (an axis that folds
-    back on itself) every rotation by pi about an axis normal to a is minimal; the one
-    about u is taken, so u stays and v flips, keeping the frame right-handed. All (..., 3).
+    normalising the axis, smooth as a -> b). Beyond, near a fold back, w is tiny and its
+    direction rounding noise, so the rotation is about n by the angle of (c, w.n). Where
+    the segment is collinear (not planar) and folds back exactly, every rotation by pi
+    about an axis normal to a is minimal: the one about u is taken (u stays, v flips).
+    All (..., 3); planar (..., 1).
     """
     w = _cross(xp, a, b)
     c = _dot(xp, a, b)
-    folded = (1.0 + c) < 1e-6
-    denom = xp.where(folded, xp.ones_like(c), 1.0 + c)
+    forward = c >= 0.0
+    one = xp.ones_like(c)
+    k = 1.0 / xp.where(forward, 1.0 + c, one)  # both branches are evaluated: keep finite
+    s = _dot(xp, w, n)
 
     def rotate(x: Any) -> Any:
-        return c * x + _cross(xp, w, x) + w * _dot(xp, w, x) / denom
+        near = c * x + _cross(xp, w, x) + w * _dot(xp, w, x) * k
+        about_n = c * x + s * _cross(xp, n, x) + (1.0 - c) * _dot(xp, n, x) * n
+        return xp.where(forward, near, about_n)
 
-    return xp.where(folded, u, rotate(u)), xp.where(folded, -v, rotate(v))
+    # The exact fold: u, made normal to b, and v = b x u (= -v when b = -a exactly),
+    # so the frame stays orthonormal and right-handed.
+    folded = (~forward) & (~planar)
+    u_fold = _normalize(xp, u - b * _dot(xp, u, b))
+    return (xp.where(folded, u_fold, rotate(u)),
+            xp.where(folded, _cross(xp, b, u_fold), rotate(v)))
 
 
 def initial_frame(T0: Any) -> tuple[Any, Any]:
@@ -132,12 +162,15 @@ def axis_frames(control_points: Any, t: Any) -> AxisFrames:
     t_start = _segment_tangent(xp, d0, chord, d1)
     t_end = _segment_tangent(xp, d1, chord, -d0)
 
+    normal, planar = _segment_binormal(xp, d0, d1)  # (K, m, 3), (K, m, 1)
+
     # Carry the frame across segments: the B-spline is C1, so each segment starts
     # with the tangent the previous one ended with.
     U, V = initial_frame(t_start[:, 0, :])
     starts_u, starts_v = [U], [V]
     for j in range(1, m):
-        U, V = _minimal_rotation(xp, t_start[:, j - 1, :], t_end[:, j - 1, :], U, V)
+        U, V = _minimal_rotation(xp, t_start[:, j - 1, :], t_end[:, j - 1, :], U, V,
+                                 normal[:, j - 1, :], planar[:, j - 1, :])
         starts_u.append(U)
         starts_v.append(V)
     seg_u = xp.stack(starts_u, axis=1)  # (K, m, 3)
@@ -151,7 +184,7 @@ def axis_frames(control_points: Any, t: Any) -> AxisFrames:
     deriv = (1.0 - u3) * (a1 - a0) + u3 * (a2 - a1)
     T = _segment_tangent(xp, deriv, a2 - a0, a1 - a0)
     ts = take(t_start)
-    U, V = _minimal_rotation(xp, ts, T, take(seg_u), take(seg_v))
+    U, V = _minimal_rotation(xp, ts, T, take(seg_u), take(seg_v), take(normal), take(planar))
     return AxisFrames(points, U, V, T)
 
 
