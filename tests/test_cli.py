@@ -215,3 +215,12 @@ def test_eval_json_is_strict_json_without_primitives(tmp_path: Path, capsys) -> 
     metrics = json.loads(last, parse_constant=refuse)  # no NaN / Infinity tokens
     assert metrics == {"iou": 0.0, "cd_l1": None, "cd_l2": None, "f1_0.05": 0.0,
                        "f1_0.01": 0.0, "n_primitives": 0}
+
+
+def test_fit_options_default_to_fit_settings() -> None:
+    # The CLI states its defaults without importing torch; they must be FitSettings'.
+    from sweepedit.cli import _fit_settings, build_parser
+    from sweepedit.fitting.fit import FitSettings
+
+    args = build_parser().parse_args(["fit", "shape.obj", "-o", "out.json"])
+    assert _fit_settings(args) == FitSettings()

@@ -623,7 +623,7 @@ class FitPanel(QWidget):
         super().__init__(parent)
         # FitSettings' defaults; not read from it, which would import torch (seconds).
         d = {"primitives": 8, "iterations": 300, "sweeper": "analytic", "seed": 0,
-             "restarts": 1, "refine_iterations": 150}
+             "restarts": 1, "refine_iterations": 300}
         d.update(defaults or {})
         self.primitives = QSpinBox()
         self.primitives.setRange(1, 32)

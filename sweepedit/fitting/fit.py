@@ -74,7 +74,7 @@ class FitSettings:
     progress_every: int = 10
     # Steps of direct refinement after the network stage (sweepedit.fitting.refine); 0
     # skips it and the network's primitives are the result.
-    refine_iterations: int = 150
+    refine_iterations: int = 300
     # Rounds of refinement that add primitives where the shape is missed (each half as
     # long as the first pass), while fewer than `primitives` are kept.
     residual_rounds: int = 2
