@@ -224,3 +224,21 @@ def test_fit_options_default_to_fit_settings() -> None:
 
     args = build_parser().parse_args(["fit", "shape.obj", "-o", "out.json"])
     assert _fit_settings(args) == FitSettings()
+
+
+def test_per_primitive_export_that_fails_leaves_no_files(params_file: Path, tmp_path: Path,
+                                                         monkeypatch, capsys) -> None:
+    import sweepedit.io.mesh_export as mesh_export
+    from sweepedit.errors import SweepeditError
+
+    real = mesh_export.solid_mesh
+
+    def fails_on_the_second(prim: SweepPrimitive, *args, **kwargs):
+        if prim.name == "post":
+            raise SweepeditError("post: cannot mesh")
+        return real(prim, *args, **kwargs)
+
+    monkeypatch.setattr(mesh_export, "solid_mesh", fails_on_the_second)
+    assert run("export", params_file, "-o", tmp_path / "part.ply", "--per-primitive") != 0
+    assert "post: cannot mesh" in capsys.readouterr().err
+    assert list(tmp_path.glob("part*")) == []

@@ -62,9 +62,9 @@ def export_abstraction(abstraction: Abstraction, path: str | Path, *, per_primit
     if not per_primitive:
         write_mesh(framed(solid_union(abstraction.primitives, stations, profile_points)), path)
         return [path]
-    written = []
-    for i, prim in enumerate(abstraction.primitives):
-        out = path.with_name(f"{path.stem}_{i:02d}{path.suffix}")
-        write_mesh(framed(solid_mesh(prim, stations, profile_points)), out, color=prim.color)
-        written.append(out)
+    # Every mesh first, then the files: a primitive that fails to mesh leaves none behind.
+    meshes = [framed(solid_mesh(p, stations, profile_points)) for p in abstraction.primitives]
+    written = [path.with_name(f"{path.stem}_{i:02d}{path.suffix}") for i in range(len(meshes))]
+    for mesh, out, prim in zip(meshes, written, abstraction.primitives, strict=True):
+        write_mesh(mesh, out, color=prim.color)
     return written
