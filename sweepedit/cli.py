@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -18,6 +19,7 @@ from sweepedit.errors import SweepeditError
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as Unix tools exit
 # The benchmark set sits beside the checkout (DESIGN.md section 6).
 DEFAULT_SHAPES = Path(__file__).resolve().parents[2] / "shared" / "shapes"
 
@@ -393,6 +395,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SweepeditError as exc:
         print(f"sweepedit: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except BrokenPipeError:
+        # The reader went away (`sweepedit eval ... | head`): stop quietly, and point
+        # stdout at /dev/null so the interpreter's final flush does not complain either.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except OSError as exc:  # missing files, permissions, full disks: say which file
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"sweepedit: error: {where}{exc.strerror or exc}", file=sys.stderr)

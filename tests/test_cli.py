@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -242,3 +243,17 @@ def test_per_primitive_export_that_fails_leaves_no_files(params_file: Path, tmp_
     assert run("export", params_file, "-o", tmp_path / "part.ply", "--per-primitive") != 0
     assert "post: cannot mesh" in capsys.readouterr().err
     assert list(tmp_path.glob("part*")) == []
+
+
+def test_a_closed_output_pipe_ends_quietly() -> None:
+    # `sweepedit inspect SHAPE | head -0`: the reader is gone before the first write.
+    shape = Path(__file__).resolve().parents[1] / "resources" / "examples" / "cactus.off"
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "sweepedit.cli", "inspect", str(shape)],
+                              stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=60)
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141
+    assert proc.stderr == ""
