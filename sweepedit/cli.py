@@ -278,8 +278,10 @@ def _cmd_train_sweeper(args: argparse.Namespace) -> int:
 def _cmd_gui(args: argparse.Namespace) -> int:
     from sweepedit.app.main import run_app, screenshot
 
+    if args.select is not None and not args.screenshot:
+        raise SweepeditError("--select goes with --screenshot")
     if args.screenshot:
-        return screenshot(args.file, args.screenshot)
+        return screenshot(args.file, args.screenshot, select=args.select)
     return run_app(args.file)
 
 
@@ -378,6 +380,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("gui", help="open the app on a file; --screenshot renders and quits")
     p.add_argument("file", nargs="?", help="shape or parameter file")
     p.add_argument("--screenshot", metavar="PNG", help="write a screenshot and quit")
+    p.add_argument("--select", type=int, metavar="N",
+                   help="with --screenshot: show primitive N (from 0) selected, axis and handles")
     p.set_defaults(func=_cmd_gui)
 
     return parser

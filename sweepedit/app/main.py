@@ -77,12 +77,14 @@ def run_app(path: str | None = None) -> int:
 
 
 def screenshot(path_in: str, png_out: str, full_window: bool = True,
-               size: tuple[int, int] = (1600, 1000), metrics_timeout_s: float = 20.0) -> int:
+               size: tuple[int, int] = (1600, 1000), metrics_timeout_s: float = 20.0,
+               select: int | None = None) -> int:
     """Open `path_in`, render, write a PNG of the window (or only the 3D view) to `png_out`
-    atomically and quit. Returns 0 on success, 1 (with a message on stderr) on failure.
+    atomically and quit. `select`: the primitive (0-based) shown selected, with its axis
+    and handles. Returns 0 on success, 1 (with a message on stderr) on failure.
     Without a display it re-runs itself under xvfb-run when that is installed."""
     if not has_display():
-        return _screenshot_under_xvfb(path_in, png_out, full_window, size)
+        return _screenshot_under_xvfb(path_in, png_out, full_window, size, select)
     app = _application()
     from sweepedit.app.window import MainWindow
 
@@ -94,6 +96,13 @@ def screenshot(path_in: str, png_out: str, full_window: bool = True,
     window.show()
     _wait(app, 0.3)
     ok = window.open_path(path_in)
+    if ok and select is not None:
+        if 0 <= select < len(window.doc):
+            window.doc.select(select)
+        else:
+            errors.append(f"{path_in}: cannot select primitive {select}; the file has "
+                          f"{len(window.doc)} (0 to {len(window.doc) - 1})")
+            ok = False
     if ok:
         window.scene.reset_camera()
         _wait(app, metrics_timeout_s, until=lambda: not window.metrics.running)
@@ -108,7 +117,7 @@ def screenshot(path_in: str, png_out: str, full_window: bool = True,
 
 
 def _screenshot_under_xvfb(path_in: str, png_out: str, full_window: bool,
-                           size: tuple[int, int]) -> int:
+                           size: tuple[int, int], select: int | None) -> int:
     xvfb = shutil.which("xvfb-run")
     if xvfb is None:
         print("sweepedit: a screenshot needs a display; none is set and xvfb-run is not "
@@ -116,6 +125,6 @@ def _screenshot_under_xvfb(path_in: str, png_out: str, full_window: bool,
         return 2
     code = ("import sys; from sweepedit.app.main import screenshot; "
             f"sys.exit(screenshot({str(path_in)!r}, {str(png_out)!r}, {full_window!r}, "
-            f"{tuple(size)!r}))")
+            f"{tuple(size)!r}, select={select!r}))")
     screen = f"-screen 0 {size[0] + 64}x{size[1] + 64}x24"
     return subprocess.call([xvfb, "-a", "-s", screen, sys.executable, "-c", code])

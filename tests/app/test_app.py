@@ -726,6 +726,19 @@ def test_screenshot_entry_point(qtbot, small_files, tmp_path: Path) -> None:
     assert len(bar) > 20, "the bar's shaded colour is not in the view"
     assert screenshot(str(small_files["broken_json"]), str(tmp_path / "no.png")) == 1
     assert not (tmp_path / "no.png").exists()
+    # Selected, the primitive's axis and white handles are drawn over it.
+    selected = tmp_path / "selected.png"
+    assert screenshot(str(small_files["json"]), str(selected), size=(900, 600), select=0) == 0
+    shot = QImage(str(selected))
+    white = sum(QColor(shot.pixelColor(x, y)).lightnessF() > 0.95
+                and QColor(shot.pixelColor(x, y)).saturationF() < 0.1
+                for x in range(300, 600, 2) for y in range(150, 450, 2))
+    plain = sum(QColor(image.pixelColor(x, y)).lightnessF() > 0.95
+                and QColor(image.pixelColor(x, y)).saturationF() < 0.1
+                for x in range(300, 600, 2) for y in range(150, 450, 2))
+    assert white > plain + 20, "no handles drawn for the selected primitive"
+    assert screenshot(str(small_files["json"]), str(tmp_path / "bad.png"), select=7) == 1
+    assert not (tmp_path / "bad.png").exists()
 
 
 def test_worker_thread_signals_reach_the_gui_thread(qtbot) -> None:
