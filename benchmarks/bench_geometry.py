@@ -1,4 +1,5 @@
-"""Geometry benchmark: mesher per primitive, union of 8, exact inside test on 64^3.
+"""Geometry benchmark: mesher per primitive, union of 8 (display tubes, and the solid that
+export writes), exact inside test on 64^3.
 
     .venv/bin/python benchmarks/bench_geometry.py
 """
@@ -13,6 +14,7 @@ import numpy as np
 from sweepedit.cli import DEFAULT_SHAPES
 from sweepedit.geometry.inside import grid_points, inside_union
 from sweepedit.geometry.mesher import sweep_mesh, sweep_meshes, union_mesh
+from sweepedit.geometry.solid import solid_union
 from sweepedit.io.params import read_abstraction
 
 
@@ -35,12 +37,14 @@ def main() -> None:
     batch = timed(lambda: sweep_meshes(eight, 64, 48), 100)
     meshes = sweep_meshes(eight, 64, 48)
     union = timed(lambda: union_mesh(meshes), 10)
+    solid = timed(lambda: solid_union(eight), 5)
     grid = grid_points(64)
     inside = timed(lambda: inside_union(grid, eight), 5)
     print(f"mesher, one primitive 64x48 (display):  median {statistics.median(single)*1e3:.2f} ms")
     print(f"mesher, 8 primitives batched 64x48:     median {statistics.median(batch)*1e3/8:.2f} ms "
           f"per primitive")
-    print(f"union of 8 primitives (manifold3d):     median {statistics.median(union)*1e3:.0f} ms")
+    print(f"union of 8 display tubes (manifold3d):  median {statistics.median(union)*1e3:.0f} ms")
+    print(f"solid union of 8 (export, solid.py):    median {statistics.median(solid)*1e3:.0f} ms")
     print(f"exact inside, 64^3 grid, 8 primitives:  median {statistics.median(inside):.2f} s")
     print(f"(inside fraction {inside_union(grid, eight).mean():.3f}, "
           f"{np.sum([len(m.faces) for m in meshes])} faces)")

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 from hypothesis import HealthCheck, example, given, settings
-from hypothesis import strategies as st
 from scipy.interpolate import BSpline
 from scipy.special import gamma
+from strategies import is_valid, primitives
 
 from sweepedit.errors import InvalidPrimitiveError
 from sweepedit.geometry.inside import grid_points, inside_primitive, inside_union
@@ -85,29 +85,8 @@ def test_numpy_and_torch_give_the_same_frames() -> None:
         np.testing.assert_allclose(g.numpy(), r, atol=1e-12)
 
 
-# Random valid primitives over the whole ranges, tight bends included.
-coord = st.floats(-0.5, 0.5, allow_nan=False)
-primitive_strategy = st.builds(
-    lambda cps, a, b, d, s1, s2: SweepPrimitive(np.array(cps).reshape(-1, 3), a=a, b=b, degree=d,
-                                                scaling=(s1, s2)),
-    st.lists(coord, min_size=9, max_size=15).filter(lambda v: len(v) % 3 == 0),
-    st.floats(0.01, 0.5), st.floats(0.01, 0.5), st.floats(0.3, 5.0),
-    st.floats(-0.5, 0.5), st.floats(-0.5, 0.5),
-)
-
-
-def _valid(p: SweepPrimitive) -> bool:
-    try:
-        p.validate()
-    except InvalidPrimitiveError:
-        return False
-    cps = p.control_points
-    # Control points closer than a hair give an axis with a kink-free but degenerate start.
-    return bool(np.min(np.linalg.norm(np.diff(cps, axis=0), axis=1)) > 1e-3)
-
-
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
-@given(primitive_strategy.filter(_valid))
+@given(primitives)
 def test_random_sweep_meshes_are_closed_outward_solids(p: SweepPrimitive) -> None:
     mesh = sweep_mesh(p, stations=48, profile_points=32).to_trimesh()
     assert mesh.is_watertight
@@ -116,7 +95,7 @@ def test_random_sweep_meshes_are_closed_outward_solids(p: SweepPrimitive) -> Non
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
-@given(primitive_strategy.filter(_valid))
+@given(primitives)
 # An axis that runs out and almost exactly back (found by hypothesis): the tangent turns
 # by nearly pi inside one segment, where the plain Rodrigues rotation loses precision.
 @example(SweepPrimitive([[0.0, 0.25139703452548523, 0.0], [0.0, 0.0, 0.0625],
@@ -206,7 +185,7 @@ def _random_unfolded(rng: np.random.Generator) -> SweepPrimitive:
                            a=rng.uniform(0.01, 0.3), b=rng.uniform(0.01, 0.3),
                            degree=rng.uniform(0.3, 5.0),
                            scaling=tuple(rng.uniform(-0.5, 0.5, 2)))
-        if _valid(p) and not folds_onto_itself(p):
+        if is_valid(p) and not folds_onto_itself(p):
             return p
 
 

@@ -242,6 +242,20 @@ def sweep_surface(control_points: Any, profile: Any, scaling: Any, t: Any, theta
     return fr.points[:, :, None, :] + f * offset
 
 
+def _axis_derivatives(xp: Any, control_points: Any, t: Any) -> tuple[Any, Any]:
+    """First and second derivatives s'(t), s''(t) of the axes: (K, n, 3), t (M,) -> each
+    (K, M, 3) (s'' is constant over each segment)."""
+    p0, p1, p2 = bezier_segments(control_points)
+    m = p0.shape[1]
+    j, u = _segment_index(xp, t, m)
+    a0, a1, a2 = (xp.take(p, j, axis=1) for p in (p0, p1, p2))
+    u3 = u[None, :, None]
+    # Global t runs m times faster than a segment's u: d/dt = m d/du.
+    d1 = 2.0 * m * ((1.0 - u3) * (a1 - a0) + u3 * (a2 - a1))
+    d2 = 2.0 * m * m * (a2 - 2.0 * a1 + a0)
+    return d1, d2
+
+
 def axis_curvature(control_points: Any, t: Any) -> Any:
     """Curvature |s' x s''| / |s'|^3 of the axes: control_points (K, n, 3), t (M,) -> (K, M).
 
@@ -249,12 +263,7 @@ def axis_curvature(control_points: Any, t: Any) -> Any:
     onto itself on the inner side of the bend.
     """
     xp = array_namespace(control_points, t)
-    p0, p1, p2 = bezier_segments(control_points)
-    j, u = _segment_index(xp, t, p0.shape[1])
-    a0, a1, a2 = (xp.take(p, j, axis=1) for p in (p0, p1, p2))
-    u3 = u[None, :, None]
-    d1 = 2.0 * ((1.0 - u3) * (a1 - a0) + u3 * (a2 - a1))
-    d2 = 2.0 * (a2 - 2.0 * a1 + a0)
+    d1, d2 = _axis_derivatives(xp, control_points, t)
     num = xp.sqrt(_dot(xp, _cross(xp, d1, d2), _cross(xp, d1, d2)))[..., 0]
     speed = xp.sqrt(_dot(xp, d1, d1))[..., 0]
     return num / xp.clip(speed, min=_EPS) ** 3
@@ -267,12 +276,7 @@ def axis_curvature_vectors(control_points: Any, t: Any) -> Any:
     the rate |s'| (1 - f o.κN): where that turns negative the sweep folds onto itself.
     """
     xp = array_namespace(control_points, t)
-    p0, p1, p2 = bezier_segments(control_points)
-    j, u = _segment_index(xp, t, p0.shape[1])
-    a0, a1, a2 = (xp.take(p, j, axis=1) for p in (p0, p1, p2))
-    u3 = u[None, :, None]
-    d1 = 2.0 * ((1.0 - u3) * (a1 - a0) + u3 * (a2 - a1))
-    d2 = 2.0 * (a2 - 2.0 * a1 + a0)
+    d1, d2 = _axis_derivatives(xp, control_points, t)
     speed2 = xp.clip(_dot(xp, d1, d1), min=_EPS)
     return (d2 - d1 * _dot(xp, d2, d1) / speed2) / speed2
 
