@@ -204,7 +204,8 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
         missed = missed_parts(points, covered, settings.min_missed_cells)
         free = budget - len(prims)
         if free > 0:
-            trial = prims + residual_primitives(missed, free, layout)
+            new = residual_primitives(missed, free, layout)
+            trial = prims + new
         else:
             # At the budget: swap the primitive that adds least for one on the biggest
             # missed part, when that part could add more than the primitive does.
@@ -213,9 +214,9 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
             union = (covered | points.locked | points.labels)[: points.n_cells]
             gain_bound = np.count_nonzero(missed) / max(np.count_nonzero(union), 1)
             new = residual_primitives(missed, 1, layout) if gain_bound > costs[victim] else []
-            trial = [p for i, p in enumerate(prims) if i != victim] + new if new else prims
-        if trial is prims:
-            break
+            trial = [p for i, p in enumerate(prims) if i != victim] + new
+        if not new:
+            break  # nothing missed worth a primitive: another pass would refine the same
         trial_prims, trial_occupancy = _refine_pass(trial, layout, points, settings,
                                                     settings.residual_iterations, rng, cancel,
                                                     on_step, offset, report_every)
