@@ -196,13 +196,18 @@ class Abstraction:
         return cls(primitives=list(primitives), **kwargs)
 
 
+def primitive_fold_vectors(primitive: SweepPrimitive, t: np.ndarray) -> np.ndarray:
+    """q(t) of sweep.fold_vectors for one primitive, so that a profile point o moves along
+    the axis at the rate J(t, o) = 1 - o . q(t): t (M,) -> (M, 2)."""
+    scaling = np.asarray(primitive.scaling, dtype=np.float64).reshape(1, -1)
+    return fold_vectors(primitive.control_points[None], scaling, t)[0]
+
+
 def folds_onto_itself(primitive: SweepPrimitive, samples: int = 256) -> bool:
     """True when the profile reaches past the axis' centre of curvature somewhere: some
     profile point o has f (o . κN) >= 1, so the sweep runs backwards there and the swept
     surface self-intersects on the inner side of the bend (the solid is still well
     defined, but the display tube is not its boundary there; solid.py meshes it)."""
-    t = np.linspace(0.0, 1.0, samples)
-    q = fold_vectors(primitive.control_points[None],
-                     np.asarray(primitive.scaling, dtype=np.float64).reshape(1, -1), t)[0]
+    q = primitive_fold_vectors(primitive, np.linspace(0.0, 1.0, samples))
     x, y = superellipse(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False), primitive.profile[None])
     return bool(np.any(q @ np.stack([x[0], y[0]]) >= 1.0))

@@ -43,11 +43,10 @@ from sweepedit.geometry.mesher import (
     _side_and_cap_faces,
     _vertex_normals,
 )
-from sweepedit.geometry.model import Abstraction, SweepPrimitive
+from sweepedit.geometry.model import Abstraction, SweepPrimitive, primitive_fold_vectors
 from sweepedit.geometry.sweep import (
     axis_frames,
     bezier_segments,
-    fold_vectors,
     scaling_factor,
     superellipse,
 )
@@ -164,15 +163,9 @@ def _turning_stations(control_points: np.ndarray, max_turn: float) -> np.ndarray
     return np.concatenate(out)
 
 
-def _fold_vectors(primitive: SweepPrimitive, t: np.ndarray) -> np.ndarray:
-    """q(t) (sweep.fold_vectors), so that J(t, o) = 1 - o . q(t): t (M,) -> (M, 2)."""
-    scaling = np.asarray(primitive.scaling, dtype=np.float64).reshape(1, -1)
-    return fold_vectors(primitive.control_points[None], scaling, t)[0]
-
-
 def _fold_rate(primitive: SweepPrimitive, t: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """The least fold rate J over profile points xy (P, 2) at each t (M,) -> (M,)."""
-    return 1.0 - (_fold_vectors(primitive, t) @ xy.T).max(axis=1)
+    return 1.0 - (primitive_fold_vectors(primitive, t) @ xy.T).max(axis=1)
 
 
 def _bezier_peaks(control_points: np.ndarray) -> np.ndarray:
@@ -242,7 +235,7 @@ def _sample(primitive: SweepPrimitive, stations: int, profile_points: int) -> _R
     x, y = superellipse(profile_angles(primitive.degree, profile_points), primitive.profile[None])
     fr = axis_frames(cps, t)
     ts = (t[:-1, None] + np.diff(t)[:, None] * _SUBSAMPLES[None, :]).reshape(-1)
-    q = _fold_vectors(primitive, ts)
+    q = primitive_fold_vectors(primitive, ts)
     m = primitive.n_control_points - 2
     bezier = np.minimum(np.floor(0.5 * (t[:-1] + t[1:]) * m), m - 1).astype(int)
     return _Rings(t, fr.points[0], fr.U[0], fr.V[0], fr.T[0], scaling_factor(scaling, t)[0],
