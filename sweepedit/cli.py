@@ -294,8 +294,9 @@ def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--restarts", type=int, default=1,
                    help="fits from different seeds; the best by IoU is kept (1)")
-    p.add_argument("--refine-iterations", type=int, default=300,
-                   help="steps of direct refinement after the network stage; 0 skips it (300)")
+    p.add_argument("--refine-iterations", type=int, default=None,
+                   help="steps of direct refinement after the network stage; 0 skips it "
+                        "(300 per 8 primitives, at least 300)")
     p.add_argument("--residual-rounds", type=int, default=2,
                    help="refinement rounds that add primitives where the shape is missed (2)")
     p.add_argument("--min-gain", type=float, default=0.001,

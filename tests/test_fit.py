@@ -38,8 +38,16 @@ def test_short_fit_recovers_a_known_sweep(arch_shape) -> None:
     metrics = evaluate(result.abstraction, arch_shape, n_samples=20000)
     assert metrics["iou"] >= 0.8, metrics
     assert result.abstraction.fit["fit_iou"] == pytest.approx(result.iou)
+    assert result.abstraction.fit["refine_steps"] == 300  # K = 2: the minimum
     for p in result.abstraction.primitives:
         p.validate()
+
+
+def test_refinement_steps_grow_with_the_primitives_unless_set() -> None:
+    assert [FitSettings(primitives=k).refine_steps for k in (1, 8, 12, 16, 32)] == \
+        [300, 300, 450, 600, 1200]
+    assert FitSettings(primitives=16, refine_iterations=0).refine_steps == 0
+    assert FitSettings(primitives=16, refine_iterations=100).refine_steps == 100
 
 
 def test_fit_is_reproducible_for_a_seed(arch_shape) -> None:

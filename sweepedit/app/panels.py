@@ -623,7 +623,7 @@ class FitPanel(QWidget):
         super().__init__(parent)
         # FitSettings' defaults; not read from it, which would import torch (seconds).
         d = {"primitives": 8, "iterations": 300, "sweeper": "analytic", "seed": 0,
-             "restarts": 1, "refine_iterations": 300}
+             "restarts": 1, "refine_iterations": None}
         d.update(defaults or {})
         self.primitives = QSpinBox()
         self.primitives.setRange(1, 32)
@@ -634,13 +634,17 @@ class FitPanel(QWidget):
         self.iterations.setSingleStep(100)
         self.iterations.setValue(int(d["iterations"]))
         self.refine_iterations = QSpinBox()
-        self.refine_iterations.setRange(0, 100000)
+        # The minimum, shown as "auto", stands for FitSettings' default (None): 300 steps
+        # per 8 primitives.
+        self.refine_iterations.setRange(-1, 100000)
+        self.refine_iterations.setSpecialValueText("auto")
         self.refine_iterations.setSingleStep(50)
-        self.refine_iterations.setValue(int(d["refine_iterations"]))
+        refine = d["refine_iterations"]
+        self.refine_iterations.setValue(-1 if refine is None else int(refine))
         self.refine_iterations.setToolTip("steps of direct refinement of the primitives after "
                                           "the network stage, and of each round that adds "
                                           "primitives where the shape is missed (half as "
-                                          "many); 0 skips it")
+                                          "many); 0 skips it; auto: 300 per 8 primitives")
         self.sweeper = QComboBox()
         self.sweeper.addItems(["analytic", "neural"])
         self.sweeper.setCurrentText(str(d["sweeper"]))
@@ -701,7 +705,8 @@ class FitPanel(QWidget):
 
     def values(self) -> dict[str, Any]:
         return {"primitives": self.primitives.value(), "iterations": self.iterations.value(),
-                "refine_iterations": self.refine_iterations.value(),
+                "refine_iterations": (None if self.refine_iterations.value() < 0
+                                      else self.refine_iterations.value()),
                 "sweeper": self.sweeper.currentText(), "seed": self.seed.value(),
                 "restarts": self.restarts.value()}
 

@@ -66,7 +66,8 @@ def format_table(rows: list[BenchRow], settings: FitSettings) -> str:
             lines.append(f"| **{name}** | {s['iou']:.3f} | {s['cd_l1']:.4f} | {s['f1_0.05']:.3f} | "
                          f"{s['f1_0.01']:.3f} | {s['n_primitives']:.1f} | {s['seconds']:.1f} |")
     settings_line = (f"K = {settings.primitives}, {settings.iterations} iterations, "
-                     f"{settings.restarts} restart(s), sweeper {settings.sweeper}, "
+                     f"{settings.refine_steps} refinement steps, {settings.restarts} restart(s), "
+                     f"sweeper {settings.sweeper}, "
                      f"seed {settings.seed}\n\n")
     return settings_line + head + "\n".join(lines) + "\n"
 

@@ -48,6 +48,8 @@ _AXIS_SAMPLES = 16
 # them; at -2 they stayed off and many-limb shapes lost coverage).
 _WARM_SELECTION_LOGIT = 2.0
 _SPARE_SELECTION_LOGIT = 0.0
+# Default refinement steps per 8 primitives (FitSettings.refine_steps).
+REFINE_STEPS_PER_8 = 300
 
 
 @dataclass
@@ -73,8 +75,9 @@ class FitSettings:
     weights: LossWeights = field(default_factory=LossWeights)
     progress_every: int = 10
     # Steps of direct refinement after the network stage (sweepedit.fitting.refine); 0
-    # skips it and the network's primitives are the result.
-    refine_iterations: int = 300
+    # skips it and the network's primitives are the result. None: REFINE_STEPS_PER_8
+    # per 8 primitives, at least that many (`refine_steps`).
+    refine_iterations: int | None = None
     # Rounds of refinement that add primitives where the shape is missed (each half as
     # long as the first pass), while fewer than `primitives` are kept.
     residual_rounds: int = 2
@@ -82,11 +85,22 @@ class FitSettings:
     # fewer primitives.
     min_gain: float = 0.001
 
+    @property
+    def refine_steps(self) -> int:
+        """Refinement steps of the first pass: as set, or by default REFINE_STEPS_PER_8
+        per 8 primitives (at least that many). Each step's points are shared by all the
+        primitives, so more primitives need more steps to move as far (dino at K = 16:
+        300 steps F1@0.01 0.797, 600 steps 0.868; BENCHMARKS.md)."""
+        if self.refine_iterations is not None:
+            return self.refine_iterations
+        return round(REFINE_STEPS_PER_8 * max(1.0, self.primitives / 8))
+
     def validate(self) -> None:
         checks = [
             (self.primitives >= 1, "primitives must be at least 1"),
             (self.iterations >= 1, "iterations must be at least 1"),
-            (self.refine_iterations >= 0, "refine iterations must be >= 0"),
+            (self.refine_iterations is None or self.refine_iterations >= 0,
+             "refine iterations must be >= 0"),
             (self.residual_rounds >= 0, "residual rounds must be >= 0"),
             (0.0 <= self.min_gain < 1.0, "min gain must be in [0, 1)"),
             (self.restarts >= 1, "restarts must be at least 1"),
@@ -289,10 +303,11 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     best: tuple[float, list[SweepPrimitive], dict[str, float]] | None = None
     scoring = ScoringPoints(shape.winding_occupancy, shape.samples.points[: shape.samples.n_near],
                             shape.samples.labels[: shape.samples.n_near], locked)
-    refine = RefineSettings(iterations=settings.refine_iterations,
-                            start_sharpness=settings.sharpness, min_gain=settings.min_gain,
-                            residual_rounds=settings.residual_rounds if settings.refine_iterations
-                            else 0, residual_iterations=settings.refine_iterations // 2)
+    steps = settings.refine_steps
+    refine = RefineSettings(iterations=steps, start_sharpness=settings.sharpness,
+                            min_gain=settings.min_gain,
+                            residual_rounds=settings.residual_rounds if steps else 0,
+                            residual_iterations=steps // 2)
     per_restart = settings.iterations + refine.total_steps
     total_iterations = per_restart * settings.restarts
 
@@ -360,7 +375,7 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     abstraction.source = {"path": str(shape.path), "sha256": shape.sha256}
     record: dict[str, Any] = {k: v for k, v in asdict(settings).items() if k != "weights"}
     record.update({"weights": asdict(settings.weights), "seconds": round(seconds, 3),
-                   "cancelled": cancel.is_set(), "locked": len(locked),
+                   "refine_steps": steps, "cancelled": cancel.is_set(), "locked": len(locked),
                    "fit_iou": None if math.isnan(iou) else round(iou, 6)})
     abstraction.fit = record
     return FitResult(abstraction, seconds, losses, iou, cancel.is_set())

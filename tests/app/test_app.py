@@ -836,6 +836,9 @@ def test_fit_panel_values_become_fit_settings(qtbot) -> None:
     # torch at start-up: this catches the copy drifting).
     defaults = make_settings(FitSettings, panel.values())
     assert defaults == FitSettings()
+    assert panel.refine_iterations.text() == "auto"
+    panel.primitives.setValue(16)
+    assert make_settings(FitSettings, panel.values()).refine_steps == 600
     panel.iterations.setValue(120)
     panel.refine_iterations.setValue(0)
     settings = make_settings(FitSettings, panel.values())
