@@ -21,11 +21,6 @@ REFINE_STEPS = 2
 _CHUNK = 1 << 15
 
 
-def _arrays(p: SweepPrimitive) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return (p.control_points[None], p.profile[None],
-            np.asarray(p.scaling, dtype=np.float64).reshape(1, -1))
-
-
 def _plane_offset(points: np.ndarray, cps: np.ndarray, t: np.ndarray) -> np.ndarray:
     """h(t) for paired points (R, 3) and parameters t (R,) -> (R,)."""
     fr = axis_frames(cps, t)
@@ -48,7 +43,7 @@ def inside_primitive(points: np.ndarray, primitive: SweepPrimitive,
                      t_samples: int = T_SAMPLES) -> np.ndarray:
     """Exact occupancy of one primitive: points (N, 3) -> bool (N,)."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    cps, profile, scaling = _arrays(primitive)
+    cps, profile, scaling = primitive.batch_arrays()
     t = np.linspace(0.0, 1.0, t_samples)
     fr = axis_frames(cps, t)
     centres, tangents = fr.points[0], fr.T[0]  # (T, 3)

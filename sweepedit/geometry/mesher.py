@@ -116,16 +116,11 @@ def sweep_meshes_batch(control_points: np.ndarray, profile: np.ndarray, scaling:
     return vertices, _side_and_cap_faces(S, P, split_caps), vertex_normals
 
 
-def _arrays(primitive: SweepPrimitive) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return (primitive.control_points[None], primitive.profile[None],
-            np.asarray(primitive.scaling, dtype=np.float64).reshape(1, -1))
-
-
 def sweep_mesh(primitive: SweepPrimitive, stations: int = DISPLAY_STATIONS,
                profile_points: int = DISPLAY_PROFILE_POINTS,
                split_caps: bool = False) -> TriangleMesh:
     """One primitive -> a closed, outward-oriented TriangleMesh (watertight unless split_caps)."""
-    v, f, n = sweep_meshes_batch(*_arrays(primitive), stations=stations,
+    v, f, n = sweep_meshes_batch(*primitive.batch_arrays(), stations=stations,
                                  profile_points=profile_points, split_caps=split_caps)
     return TriangleMesh(v[0], f, n[0])
 

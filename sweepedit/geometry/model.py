@@ -96,6 +96,16 @@ class SweepPrimitive:
         """(3,) array [a, b, d]."""
         return np.array([self.a, self.b, self.degree])
 
+    @property
+    def scaling_array(self) -> np.ndarray:
+        """(1, k) the scaling coefficients as a batch of one, as sweep.py takes them."""
+        return np.asarray(self.scaling, dtype=np.float64).reshape(1, -1)
+
+    def batch_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """This primitive as a batch of one for sweep.py's functions: control points
+        (1, n, 3), profile (1, 3), scaling (1, k)."""
+        return self.control_points[None], self.profile[None], self.scaling_array
+
     def copy(self) -> SweepPrimitive:
         return copy.deepcopy(self)
 
@@ -199,8 +209,7 @@ class Abstraction:
 def primitive_fold_vectors(primitive: SweepPrimitive, t: np.ndarray) -> np.ndarray:
     """q(t) of sweep.fold_vectors for one primitive, so that a profile point o moves along
     the axis at the rate J(t, o) = 1 - o . q(t): t (M,) -> (M, 2)."""
-    scaling = np.asarray(primitive.scaling, dtype=np.float64).reshape(1, -1)
-    return fold_vectors(primitive.control_points[None], scaling, t)[0]
+    return fold_vectors(primitive.control_points[None], primitive.scaling_array, t)[0]
 
 
 def folds_onto_itself(primitive: SweepPrimitive, samples: int = 256) -> bool:

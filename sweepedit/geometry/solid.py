@@ -230,7 +230,7 @@ def solid_profile_points(degree: float, requested: int = DISPLAY_PROFILE_POINTS)
 
 def _sample(primitive: SweepPrimitive, stations: int, profile_points: int) -> _Rings:
     cps = primitive.control_points[None]
-    scaling = np.asarray(primitive.scaling, dtype=np.float64).reshape(1, -1)
+    scaling = primitive.scaling_array
     t = solid_stations(primitive, stations)
     x, y = superellipse(profile_angles(primitive.degree, profile_points), primitive.profile[None])
     fr = axis_frames(cps, t)
