@@ -193,7 +193,8 @@ def _fit_settings(args: argparse.Namespace):
                        sweeper=args.sweeper, seed=args.seed, restarts=args.restarts,
                        control_points=args.control_points, scaling_degree=args.scaling_degree,
                        refine_iterations=args.refine_iterations,
-                       residual_rounds=args.residual_rounds, min_gain=args.min_gain)
+                       residual_rounds=args.residual_rounds, min_gain=args.min_gain,
+                       surface_weight=args.surface_weight)
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -293,14 +294,17 @@ def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
                    help="differentiable sweeper used while fitting (analytic)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--restarts", type=int, default=1,
-                   help="fits from different seeds; the best by IoU is kept (1)")
+                   help="fits from different seeds; the best by score is kept (1)")
     p.add_argument("--refine-iterations", type=int, default=None,
                    help="steps of direct refinement after the network stage; 0 skips it "
                         "(300 per 8 primitives, at least 300)")
     p.add_argument("--residual-rounds", type=int, default=2,
                    help="refinement rounds that add primitives where the shape is missed (2)")
     p.add_argument("--min-gain", type=float, default=0.001,
-                   help="IoU a primitive must add to be kept; higher keeps fewer (0.001)")
+                   help="score a primitive must add to be kept; higher keeps fewer (0.001)")
+    p.add_argument("--surface-weight", type=float, default=1.0,
+                   help="weight of surface coverage against IoU when refining; higher "
+                        "spends primitives on thin parts (1.0)")
     p.add_argument("--control-points", type=int, default=3, help="per axis (3)")
     p.add_argument("--scaling-degree", type=int, default=2, help="of f(t) (2)")
 

@@ -132,3 +132,50 @@ def test_at_the_budget_a_primitive_is_swapped_for_a_bigger_missed_part() -> None
     # With room for two, both bars are covered.
     both, score_both = refine_primitives([thin], ParamLayout(), points, settings, budget=2)
     assert len(both) == 2 and score_both > score
+
+
+FAT = SweepPrimitive([[-0.35, 0.0, -0.15], [0.0, 0.0, -0.15], [0.35, 0.0, -0.15]], a=0.1, b=0.1)
+THIN = SweepPrimitive([[0.2, -0.35, 0.2], [0.2, 0.0, 0.2], [0.2, 0.35, 0.2]], a=0.02, b=0.02)
+
+
+def surface_points(primitives: list[SweepPrimitive], weight: float,
+                   res: int = 64) -> ScoringPoints:
+    """Scoring points on a grid alone (so that the IoU is a share of volume), labelled
+    by the exact inside test, with area-uniform samples of the true surfaces."""
+    import trimesh
+
+    grid = np.zeros(res**3, dtype=bool)
+    for p in primitives:
+        grid |= inside_primitive(grid_points(res), p)
+    meshes = [sweep_mesh(p, 64, 48).to_trimesh() for p in primitives]
+    surface, _ = trimesh.sample.sample_surface(trimesh.util.concatenate(meshes), 3000, seed=2)
+    return ScoringPoints(grid.reshape((res,) * 3), np.zeros((0, 3)), np.zeros(0),
+                         surface=surface, reach=0.03, surface_weight=weight)
+
+
+def test_surface_coverage_is_the_share_of_the_surface_near_the_union() -> None:
+    points = surface_points([FAT, THIN], weight=1.0)
+    inside_fat = inside_primitive(points.points, FAT)
+    inside_thin = inside_primitive(points.points, THIN)
+    # The bars are 0.21 apart, more than the reach: covering one bar covers its own
+    # surface and none of the other's, so coverage is its share of the surface area.
+    area_fat, area_thin = (sweep_mesh(p, 64, 48).to_trimesh().area for p in (FAT, THIN))
+    share_fat = area_fat / (area_fat + area_thin)
+    assert points.surface_coverage(inside_fat) == pytest.approx(share_fat, abs=0.03)
+    assert points.surface_coverage(inside_fat | inside_thin) > 0.99
+    assert points.surface_coverage(np.zeros_like(inside_fat)) == 0.0
+    # The score is the IoU plus the weighted coverage.
+    both = inside_fat | inside_thin
+    assert points.score(both) == pytest.approx(points.iou(both) + points.surface_coverage(both))
+
+
+def test_surface_weight_keeps_a_thin_part_that_iou_alone_would_prune() -> None:
+    plain, weighted = surface_points([FAT, THIN], 0.0), surface_points([FAT, THIN], 1.0)
+    occupancy = np.stack([inside_primitive(plain.points, FAT),
+                          inside_primitive(plain.points, THIN)])
+    thin_iou_gain = plain.score(occupancy.any(axis=0)) - plain.score(occupancy[0])
+    # The thin bar is a small share of the volume but a large one of the surface.
+    assert 0.0 < thin_iou_gain < 0.1
+    min_gain = 2 * thin_iou_gain
+    assert prune(occupancy, plain, min_gain) == [0]
+    assert prune(occupancy, weighted, min_gain) == [0, 1]
