@@ -225,6 +225,9 @@ def test_fit_options_default_to_fit_settings() -> None:
 
     args = build_parser().parse_args(["fit", "shape.obj", "-o", "out.json"])
     assert _fit_settings(args) == FitSettings()
+    args = build_parser().parse_args(["fit", "shape.obj", "-o", "out.json",
+                                      "--surface-weight", "0", "--min-gain", "0.01"])
+    assert (_fit_settings(args).surface_weight, _fit_settings(args).min_gain) == (0.0, 0.01)
 
 
 def test_per_primitive_export_that_fails_leaves_no_files(params_file: Path, tmp_path: Path,
