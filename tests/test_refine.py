@@ -21,8 +21,16 @@ from sweepedit.geometry.model import SweepPrimitive
 RES = 32
 BAR_X = SweepPrimitive([[-0.35, 0.0, 0.0], [0.0, 0.0, 0.0], [0.35, 0.0, 0.0]], a=0.06, b=0.06)
 BAR_Y = SweepPrimitive([[0.2, -0.35, 0.1], [0.2, 0.0, 0.1], [0.2, 0.35, 0.1]], a=0.05, b=0.05)
+FAT = SweepPrimitive([[-0.35, 0.0, -0.15], [0.0, 0.0, -0.15], [0.35, 0.0, -0.15]], a=0.1, b=0.1)
+THIN = SweepPrimitive([[0.2, -0.35, 0.2], [0.2, 0.0, 0.2], [0.2, 0.35, 0.2]], a=0.02, b=0.02)
 ARCH = SweepPrimitive([[-0.35, -0.1, 0.0], [0.0, 0.3, 0.05], [0.35, -0.1, 0.0]], a=0.08,
                       b=0.06, degree=2.5, scaling=(0.2, -0.3))
+
+
+def truth_grid(primitives: list[SweepPrimitive], res: int) -> np.ndarray:
+    """(res, res, res) bool: the exact inside test of the union at the cell centres."""
+    cells = grid_points(res)
+    return np.any([inside_primitive(cells, p) for p in primitives], axis=0).reshape((res,) * 3)
 
 
 def truth_points(primitives: list[SweepPrimitive], res: int = RES,
@@ -30,10 +38,8 @@ def truth_points(primitives: list[SweepPrimitive], res: int = RES,
     """Scoring points labelled by the exact inside test of the true primitives: the grid,
     and points jittered off their surfaces."""
     rng = np.random.default_rng(1)
-    grid = np.zeros(res**3, dtype=bool)
     surface = []
     for p in primitives:
-        grid |= inside_primitive(grid_points(res), p)
         mesh = sweep_mesh(p, 48, 32)
         surface.append(mesh.vertices[rng.integers(0, len(mesh.vertices), n_samples)])
     samples = np.concatenate(surface)
@@ -41,7 +47,7 @@ def truth_points(primitives: list[SweepPrimitive], res: int = RES,
     labels = np.zeros(len(samples), dtype=bool)
     for p in primitives:
         labels |= inside_primitive(samples, p)
-    return ScoringPoints(grid.reshape((res,) * 3), samples, labels.astype(np.float32))
+    return ScoringPoints(truth_grid(primitives, res), samples, labels.astype(np.float32))
 
 
 def test_prune_drops_what_adds_nothing_and_keeps_what_counts() -> None:
@@ -116,11 +122,9 @@ def test_refinement_keeps_locked_primitives_out_and_is_never_worse() -> None:
 
 
 def test_at_the_budget_a_primitive_is_swapped_for_a_bigger_missed_part() -> None:
-    fat = SweepPrimitive([[-0.35, 0.0, -0.15], [0.0, 0.0, -0.15], [0.35, 0.0, -0.15]],
-                         a=0.1, b=0.1)
     thin = SweepPrimitive([[0.2, -0.35, 0.2], [0.2, 0.0, 0.2], [0.2, 0.35, 0.2]],
                           a=0.04, b=0.04)
-    points = truth_points([fat, thin])
+    points = truth_points([FAT, thin])
     # One primitive allowed, sitting on the thin bar: the fat one is worth more.
     settings = RefineSettings(iterations=10, residual_rounds=1, residual_iterations=60)
     before = points.score(inside_primitive(points.points, thin))
@@ -134,22 +138,15 @@ def test_at_the_budget_a_primitive_is_swapped_for_a_bigger_missed_part() -> None
     assert len(both) == 2 and score_both > score
 
 
-FAT = SweepPrimitive([[-0.35, 0.0, -0.15], [0.0, 0.0, -0.15], [0.35, 0.0, -0.15]], a=0.1, b=0.1)
-THIN = SweepPrimitive([[0.2, -0.35, 0.2], [0.2, 0.0, 0.2], [0.2, 0.35, 0.2]], a=0.02, b=0.02)
-
-
 def surface_points(primitives: list[SweepPrimitive], weight: float,
                    res: int = 64) -> ScoringPoints:
     """Scoring points on a grid alone (so that the IoU is a share of volume), labelled
     by the exact inside test, with area-uniform samples of the true surfaces."""
     import trimesh
 
-    grid = np.zeros(res**3, dtype=bool)
-    for p in primitives:
-        grid |= inside_primitive(grid_points(res), p)
     meshes = [sweep_mesh(p, 64, 48).to_trimesh() for p in primitives]
     surface, _ = trimesh.sample.sample_surface(trimesh.util.concatenate(meshes), 3000, seed=2)
-    return ScoringPoints(grid.reshape((res,) * 3), np.zeros((0, 3)), np.zeros(0),
+    return ScoringPoints(truth_grid(primitives, res), np.zeros((0, 3)), np.zeros(0),
                          surface=surface, reach=0.03, surface_weight=weight)
 
 

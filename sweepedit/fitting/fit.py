@@ -50,10 +50,8 @@ _WARM_SELECTION_LOGIT = 2.0
 _SPARE_SELECTION_LOGIT = 0.0
 # Default refinement steps per 8 primitives (FitSettings.refine_steps).
 REFINE_STEPS_PER_8 = 300
-# Surface samples for the refinement score's coverage term, and how near (normalised
-# units) a point of the union must be for a sample to count as covered.
+# Surface samples for the refinement score's coverage term.
 SURFACE_SAMPLES = 2048
-SURFACE_REACH = 0.03
 
 
 @dataclass
@@ -314,7 +312,7 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     scoring = ScoringPoints(shape.winding_occupancy, shape.samples.points[: shape.samples.n_near],
                             shape.samples.labels[: shape.samples.n_near], locked,
                             surface=shape.surface_samples(SURFACE_SAMPLES, seed=0),
-                            reach=SURFACE_REACH, surface_weight=settings.surface_weight)
+                            surface_weight=settings.surface_weight)
     steps = settings.refine_steps
     refine = RefineSettings(iterations=steps, start_sharpness=settings.sharpness,
                             min_gain=settings.min_gain,

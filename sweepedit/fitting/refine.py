@@ -56,6 +56,10 @@ from sweepedit.fitting.warmstart import warm_start_primitives
 from sweepedit.geometry.inside import grid_points, inside_primitives
 from sweepedit.geometry.model import SweepPrimitive
 
+# How near (normalised units) a point of the union must be for a surface sample to count
+# as covered: within F1@0.05's threshold, so a limb must be followed, not just neared.
+SURFACE_REACH = 0.03
+
 
 @dataclass(frozen=True)
 class RefineSettings:
@@ -105,7 +109,7 @@ class ScoringPoints:
 
     def __init__(self, grid_target: np.ndarray, samples: np.ndarray,
                  sample_labels: np.ndarray, locked: Sequence[SweepPrimitive] = (), *,
-                 surface: np.ndarray | None = None, reach: float = 0.03,
+                 surface: np.ndarray | None = None, reach: float = SURFACE_REACH,
                  surface_weight: float = 0.0) -> None:
         self.resolution = grid_target.shape[0]
         self.grid_target = np.asarray(grid_target, dtype=bool)
