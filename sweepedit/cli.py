@@ -210,6 +210,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if Path(args.output).suffix.lower() not in (".json", ".txt"):
         raise SweepeditError(f"{args.output}: parameter files end in .json or .txt")
     settings = _fit_settings(args)
+    settings.validate()  # before the shape loads and the progress bar is drawn
     shape = load_shape(args.shape)
     cancel = threading.Event()
     bar = tqdm(unit="it", desc="fitting", dynamic_ncols=True, disable=args.quiet)

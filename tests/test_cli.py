@@ -154,6 +154,16 @@ def test_bad_option_values_are_usage_errors(params_file: Path, tmp_path: Path, c
     assert list(tmp_path.iterdir()) == [params_file]
 
 
+def test_bad_fit_settings_fail_before_any_work(tmp_path: Path, capsys) -> None:
+    # Settings are checked first: the shape (here not even there) is not read and no
+    # progress bar is drawn.
+    shape = tmp_path / "shape.obj"
+    assert run("fit", shape, "-o", tmp_path / "p.json", "--surface-weight", "-1") == 2
+    err = capsys.readouterr().err
+    assert "surface weight must be >= 0" in err and "fitting" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_unwritable_output_names_the_output_not_a_temporary_file(params_file: Path,
                                                                   tmp_path: Path,
                                                                   capsys) -> None:
