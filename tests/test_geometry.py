@@ -115,6 +115,10 @@ def test_random_sweep_meshes_are_closed_outward_solids(p: SweepPrimitive) -> Non
 # A hairpin whose plane's normal is 1e-12 long: still the exact axis of the turn.
 @example(SweepPrimitive([[0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.5, 1e-12, 0.0]],
                         a=0.5, b=0.5, degree=1.0))
+# Out and back 2e-11 off in x: d0 x d1 cancels to noise (frames 1e-6 off orthonormal);
+# d0 x chord does not.
+@example(SweepPrimitive([[2.393817354209163e-11, 0.5, 0.0], [0.5, 0.0, 0.451171875],
+                         [0.0, 0.5, 0.0]], a=0.5, b=0.5, degree=1.0))
 def test_frames_are_orthonormal_and_do_not_twist(p: SweepPrimitive) -> None:
     t = np.linspace(0, 1, 401)
     U, V, T = (x[0] for x in axis_frames(p.control_points[None], t)[1:])

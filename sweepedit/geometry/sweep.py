@@ -76,14 +76,17 @@ def _segment_index(xp: Any, t: Any, m: int) -> tuple[Any, Any]:
     return xp.astype(j, xp.int64), u
 
 
-def _segment_binormal(xp: Any, d0: Any, d1: Any) -> tuple[Any, Any]:
-    """Unit normal of a quadratic segment's plane, from its legs d0, d1 (..., 3).
+def _segment_binormal(xp: Any, d0: Any, d1: Any, chord: Any) -> tuple[Any, Any]:
+    """Unit normal of a quadratic segment's plane, from its legs d0, d1 and its chord
+    d0 + d1 = p2 - p0 (..., 3).
 
     -> n (..., 3) and planar (..., 1) bool, False where the legs are collinear to rounding
     (then n is arbitrary). Taken from the control points, not from sampled tangents, so
-    it is the same exact axis at every sample of the segment.
+    it is the same exact axis at every sample of the segment. n = d0 x chord (= d0 x d1):
+    where the axis folds back, d1 ~ -d0 and d0 x d1 cancels to rounding noise of the
+    legs' size, while the short chord, a difference of nearby points, is exact.
     """
-    n = _cross(xp, d0, d1)
+    n = _cross(xp, d0, chord)
     nn = _dot(xp, n, n)
     planar = nn > (64.0 * xp.finfo(n.dtype).eps) ** 2 * _dot(xp, d0, d0) * _dot(xp, d1, d1)
     # Relative, not _normalize's absolute eps: a normal of length 1e-13 is still exact.
@@ -162,7 +165,7 @@ def axis_frames(control_points: Any, t: Any) -> AxisFrames:
     t_start = _segment_tangent(xp, d0, chord, d1)
     t_end = _segment_tangent(xp, d1, chord, -d0)
 
-    normal, planar = _segment_binormal(xp, d0, d1)  # (K, m, 3), (K, m, 1)
+    normal, planar = _segment_binormal(xp, d0, d1, chord)  # (K, m, 3), (K, m, 1)
 
     # Carry the frame across segments: the B-spline is C1, so each segment starts
     # with the tangent the previous one ended with.
