@@ -12,6 +12,7 @@ import json
 import math
 import os
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -20,6 +21,12 @@ from sweepedit.errors import SweepeditError
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as Unix tools exit
+# When the command started (main), for time limits that count the whole command.
+_STARTED = time.perf_counter()
+# Of a `fit --time-limit`, the seconds kept for writing the file and its metrics, which
+# are then taken on fewer surface samples (the protocol's 100,000 take about a second).
+_WRITE_RESERVE_S = 0.6
+_QUICK_METRIC_SAMPLES = 20_000
 # The benchmark set sits beside the checkout (DESIGN.md section 6).
 DEFAULT_SHAPES = Path(__file__).resolve().parents[2] / "shared" / "shapes"
 
@@ -189,12 +196,23 @@ def _run_cancellable(work, cancel) -> object:
 def _fit_settings(args: argparse.Namespace):
     from sweepedit.fitting.fit import FitSettings
 
-    return FitSettings(primitives=args.primitives, iterations=args.iterations,
+    return FitSettings(primitives=args.primitives, method=args.method,
+                       iterations=args.iterations, time_limit=args.time_limit,
+                       device=args.device,
                        sweeper=args.sweeper, seed=args.seed, restarts=args.restarts,
                        control_points=args.control_points, scaling_degree=args.scaling_degree,
                        refine_iterations=args.refine_iterations,
                        residual_rounds=args.residual_rounds, min_gain=args.min_gain,
                        surface_weight=args.surface_weight)
+
+
+def fit_progress_text(p) -> tuple[str, str]:
+    """(description, postfix) of a progress bar for a FitProgress: the stage, its own
+    share, the primitives and the time left."""
+    left = "" if p.seconds_left is None else f", ~{p.seconds_left:.0f} s left"
+    restart = f" (restart {p.restart + 1})" if p.restart else ""
+    return (f"{p.stage}{restart}",
+            f"{p.stage_fraction:.0%} of stage, {len(p.abstraction.primitives)} primitives{left}")
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -212,25 +230,36 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     settings = _fit_settings(args)
     settings.validate()  # before the shape loads and the progress bar is drawn
     shape = load_shape(args.shape)
+    if settings.time_limit is not None:
+        # The limit is the command's: loading (and importing torch) came out of it, and
+        # writing the file and its metrics must fit in it too.
+        spent = time.perf_counter() - _STARTED
+        settings.time_limit = max(settings.time_limit - spent - _WRITE_RESERVE_S, 0.05)
     cancel = threading.Event()
-    bar = tqdm(unit="it", desc="fitting", dynamic_ncols=True, disable=args.quiet)
+    bar = tqdm(total=100, desc="fitting", dynamic_ncols=True, disable=args.quiet,
+               bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}")
 
     def progress(p) -> None:
-        bar.total = p.total
-        bar.n = p.iteration
-        bar.set_postfix(rec=f"{p.losses['reconstruction']:.4f}",
-                        prims=len(p.abstraction.primitives), refresh=False)
+        desc, postfix = fit_progress_text(p)
+        bar.n = round(100 * p.iteration / max(p.total, 1))
+        bar.set_description_str(desc, refresh=False)
+        bar.set_postfix_str(postfix, refresh=False)
         bar.refresh()
 
     result = _run_cancellable(
         lambda: fit_abstraction(shape, settings, callback=progress, cancel=cancel), cancel)
+    bar.n = 100
     bar.close()
     abstraction = result.abstraction
-    metrics = evaluate(abstraction, shape, seed=args.seed)
+    write_abstraction(abstraction, args.output)  # the result is safe before the metrics
+    samples = _QUICK_METRIC_SAMPLES if args.time_limit else 100_000
+    metrics = evaluate(abstraction, shape, seed=args.seed, n_samples=samples)
+    metrics["samples"] = samples
     metrics["seconds"] = result.seconds
     abstraction.fit = {**(abstraction.fit or {}), "metrics": metrics}
     write_abstraction(abstraction, args.output)
-    state = "cancelled, best so far" if result.cancelled else "done"
+    state = ("cancelled, best so far" if result.cancelled
+             else "time limit reached, best so far" if result.timed_out else "done")
     print(f"{state}: {len(abstraction.primitives)} primitives in {result.seconds:.1f} s; "
           f"IoU {metrics['iou']:.3f}, CD-L1 {metrics['cd_l1']:.4f}, "
           f"F1@0.05 {metrics['f1_0.05']:.3f} -> {args.output}")
@@ -289,10 +318,18 @@ def _cmd_gui(args: argparse.Namespace) -> int:
 
 def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
     p.add_argument("--primitives", "-k", type=int, default=8, help="primitives to fit (8)")
+    p.add_argument("--method", choices=("direct", "network"), default="direct",
+                   help="direct: warm start from the skeleton, then refinement (fast); "
+                        "network: SweepNet's per-shape network stage first, as in the paper "
+                        "(direct)")
+    p.add_argument("--time-limit", type=float, default=None, metavar="SECONDS",
+                   help="stop by then and keep the best abstraction found (no limit)")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                   help="where the fit runs: auto is CUDA when present, else the CPU (auto)")
     p.add_argument("--iterations", "-n", type=int, default=iterations,
-                   help=f"optimisation steps per restart ({iterations})")
+                   help=f"network-stage steps per restart, with --method network ({iterations})")
     p.add_argument("--sweeper", choices=("analytic", "neural"), default="analytic",
-                   help="differentiable sweeper used while fitting (analytic)")
+                   help="differentiable sweeper of the network stage (analytic)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--restarts", type=int, default=1,
                    help="fits from different seeds; the best by score is kept (1)")
@@ -394,6 +431,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    global _STARTED
+    _STARTED = time.perf_counter()
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     commands = set(parser._subparsers._group_actions[0].choices)  # type: ignore[union-attr]

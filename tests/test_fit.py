@@ -110,11 +110,11 @@ def test_cancel_during_refinement_keeps_a_valid_result(arch_shape) -> None:
         if progress.iteration > 30:
             cancel.set()
 
-    settings = quick(iterations=10, refine_iterations=5_000, progress_every=5)
+    settings = quick(refine_iterations=5_000, progress_every=5)
     result = fit_abstraction(arch_shape, settings, callback=callback, cancel=cancel)
     assert result.cancelled
     # The refinement reports on the same count as the network stage, to the same total.
-    assert {total for _, total in seen} == {10 + 5_000 + 2 * 2_500}
+    assert {total for _, total in seen} == {5_000 + 2 * 2_500}
     assert 30 < max(it for it, _ in seen) < 100
     assert len(result.abstraction) >= 1
     for p in result.abstraction.primitives:
@@ -124,9 +124,83 @@ def test_cancel_during_refinement_keeps_a_valid_result(arch_shape) -> None:
 def test_refinement_improves_on_the_network_stage(arch_shape) -> None:
     from sweepedit.analysis.metrics import evaluate
 
-    network = fit_abstraction(arch_shape, quick(iterations=40, refine_iterations=0))
-    refined = fit_abstraction(arch_shape, quick(iterations=40, refine_iterations=100))
+    network = fit_abstraction(arch_shape, quick(method="network", iterations=40,
+                                                refine_iterations=0))
+    refined = fit_abstraction(arch_shape, quick(method="network", iterations=40,
+                                                refine_iterations=100))
     m_net = evaluate(network.abstraction, arch_shape, n_samples=20000)
     m_ref = evaluate(refined.abstraction, arch_shape, n_samples=20000)
     assert m_ref["iou"] > m_net["iou"] + 0.02, (m_net, m_ref)
     assert m_ref["cd_l1"] < m_net["cd_l1"], (m_net, m_ref)
+
+
+def test_progress_stages_come_in_order_with_monotone_fractions(arch_shape) -> None:
+    seen: list[tuple[str, float, float | None]] = []
+
+    def callback(p) -> None:
+        for prim in p.abstraction.primitives:
+            prim.validate()
+        seen.append((p.stage, p.stage_fraction, p.seconds_left))
+
+    fit_abstraction(arch_shape, quick(method="network", iterations=20, refine_iterations=60,
+                                      residual_rounds=2, progress_every=5), callback=callback)
+    # The first report is the warm start, a complete abstraction, before any step.
+    assert seen[0][:2] == ("warm start", 1.0)
+    stages = [stage for stage, _, _ in seen]
+    order = list(dict.fromkeys(stages))  # each stage once, in order of appearance
+    assert order[:3] == ["warm start", "network", "refinement"], order
+    assert all(stage.startswith("residual round") for stage in order[3:]), order
+    # Stages do not interleave: once left, a stage does not come back.
+    assert [s for i, s in enumerate(stages) if i == 0 or stages[i - 1] != s] == order
+    for stage in order:
+        fractions = [f for s, f, _ in seen if s == stage]
+        assert fractions == sorted(fractions), (stage, fractions)
+        assert fractions[-1] == 1.0, (stage, fractions)
+        assert all(0.0 <= f <= 1.0 for f in fractions)
+    assert any(left is not None for _, _, left in seen[1:])
+
+
+def test_time_limit_returns_a_valid_abstraction_in_time(arch_shape) -> None:
+    import time
+
+    start = time.perf_counter()
+    result = fit_abstraction(arch_shape, quick(method="network", iterations=100_000,
+                                               time_limit=1.0))
+    elapsed = time.perf_counter() - start
+    assert result.timed_out and not result.cancelled
+    assert elapsed < 2.0, elapsed
+    assert len(result.abstraction) >= 1
+    for p in result.abstraction.primitives:
+        p.validate()
+    assert result.abstraction.fit["timed_out"] is True
+
+
+def test_unknown_method_and_missing_cuda_are_clear_errors(arch_shape) -> None:
+    import torch
+
+    from sweepedit.errors import SweepeditError
+
+    with pytest.raises(SweepeditError, match="method"):
+        fit_abstraction(arch_shape, quick(method="magic"))
+    if not torch.cuda.is_available():
+        with pytest.raises(SweepeditError, match="CUDA"):
+            fit_abstraction(arch_shape, quick(device="cuda"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["eight", "cactus", "hand"])
+def test_default_fit_is_as_good_as_the_paper_network_path(shapes_dir: Path, name: str) -> None:
+    """The direct default against SweepNet's network stage (then the same refinement),
+    same K, both scored by the exact inside test against the shape's winding number."""
+    from sweepedit.analysis.metrics import RESOLUTION, shape_inside_grid
+    from sweepedit.analysis.metrics import iou as grid_iou
+    from sweepedit.geometry.inside import grid_points, inside_union
+
+    shape = load_shape(next(shapes_dir.glob(f"{name}.*")))
+    target = shape_inside_grid(shape)
+    cells = grid_points(RESOLUTION)
+    scores = {}
+    for method in ("direct", "network"):
+        result = fit_abstraction(shape, FitSettings(primitives=4, method=method))
+        scores[method] = grid_iou(inside_union(cells, result.abstraction.primitives), target)
+    assert scores["direct"] >= scores["network"] - 0.02, scores

@@ -6,7 +6,7 @@ import json
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from sweepedit.errors import SweepeditError
@@ -23,6 +23,8 @@ class BenchRow:
     shape: str
     metrics: dict[str, float]
     error: str | None = None
+    # Seconds per stage of the fit (load, voxelise, skeleton, warm start, ...).
+    stages: dict[str, float] = field(default_factory=dict)
 
 
 def shape_files(folder: str | Path) -> list[Path]:
@@ -65,11 +67,28 @@ def format_table(rows: list[BenchRow], settings: FitSettings) -> str:
         if s:
             lines.append(f"| **{name}** | {s['iou']:.3f} | {s['cd_l1']:.4f} | {s['f1_0.05']:.3f} | "
                          f"{s['f1_0.01']:.3f} | {s['n_primitives']:.1f} | {s['seconds']:.1f} |")
-    settings_line = (f"K = {settings.primitives}, {settings.iterations} iterations, "
+    network = (f"network stage {settings.iterations} iterations (sweeper {settings.sweeper})"
+               if settings.method == "network" else "no network stage")
+    limit = f", time limit {settings.time_limit:g} s" if settings.time_limit else ""
+    settings_line = (f"K = {settings.primitives}, method {settings.method} ({network}), "
                      f"{settings.refine_steps} refinement steps, {settings.restarts} restart(s), "
-                     f"sweeper {settings.sweeper}, "
-                     f"seed {settings.seed}\n\n")
-    return settings_line + head + "\n".join(lines) + "\n"
+                     f"seed {settings.seed}{limit}\n\n")
+    return settings_line + head + "\n".join(lines) + "\n" + format_stage_table(rows)
+
+
+def format_stage_table(rows: list[BenchRow]) -> str:
+    """A Markdown table of the median seconds per stage over the shapes that have them."""
+    names: list[str] = []
+    for r in rows:
+        names += [n for n in r.stages if n not in names]
+    if not names:
+        return ""
+    lines = ["", "| stage | median s | mean s |", "|---|---|---|"]
+    for name in names:
+        values = [r.stages.get(name, 0.0) for r in rows if r.stages]
+        lines.append(f"| {name} | {statistics.median(values):.2f} | "
+                     f"{statistics.fmean(values):.2f} |")
+    return "\n".join(lines) + "\n"
 
 
 def run_bench(shapes_dir: str | Path, out_file: str | Path, settings: FitSettings,
@@ -92,13 +111,15 @@ def run_bench(shapes_dir: str | Path, out_file: str | Path, settings: FitSetting
         try:
             start = time.perf_counter()
             shape = load_shape(path)
+            loaded = time.perf_counter()
             result = fit_abstraction(shape, settings)
             seconds = time.perf_counter() - start
             metrics = evaluate(result.abstraction, shape, seed=settings.seed)
             metrics["seconds"] = seconds
+            stages = {"load": loaded - start, **result.stage_seconds}
             result.abstraction.fit = {**(result.abstraction.fit or {}), "metrics": metrics}
             write_abstraction(result.abstraction, params_dir / f"{path.stem}.json")
-            rows.append(BenchRow(path.stem, metrics))
+            rows.append(BenchRow(path.stem, metrics, stages=stages))
             sheet.append((path.stem, shape, result.abstraction))
         except SweepeditError as exc:
             rows.append(BenchRow(path.stem, {}, error=str(exc)))

@@ -1,15 +1,28 @@
-"""Per-shape SweepNet fitting: warm start, Adam on the network, best result kept.
+"""Per-shape fitting: warm start, optionally SweepNet's network stage, then refinement.
 
-`fit_abstraction` is what the CLI and the app call. It reports progress through a
-callback (every few iterations, with the current primitives as a valid Abstraction),
-stops within an iteration when `cancel` is set, and always returns a valid abstraction:
-parameters pass through the range mapping, and a step that produces a non-finite value
-is never taken as a result.
+`fit_abstraction` is what the CLI and the app call. Two methods:
+
+- "direct" (the default): the warm-start primitives (fitted to the skeleton's branches,
+  radius and scaling included) go straight into refinement (sweepedit.fitting.refine),
+  whose residual rounds add primitives where the shape is missed. On the benchmark
+  shapes this matches the network path's quality in a fraction of the time
+  (BENCHMARKS.md, "Abstract in seconds").
+- "network": the paper's method: the voxel encoder and two heads trained per shape
+  (with the analytic or the neural sweeper, reconstruction, overlap, parsimony and axis
+  losses), then the same refinement.
+
+It reports progress through a callback: the stage ("warm start", "network",
+"refinement", "residual round k of n"), its own fraction, an estimate of the seconds
+left, and the current primitives as a valid Abstraction -- the first report is the
+complete warm start. It stops within a step when `cancel` is set or the time limit is
+reached, and always returns a valid, non-empty abstraction: parameters pass through the
+range mapping, and a step that produces a non-finite value is never taken as a result.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -30,7 +43,13 @@ from sweepedit.fitting.losses import (
 )
 from sweepedit.fitting.network import SweepNet
 from sweepedit.fitting.params import ParamLayout
-from sweepedit.fitting.refine import RefineSettings, ScoringPoints, refine_primitives
+from sweepedit.fitting.refine import (
+    RefineSettings,
+    RefineStep,
+    RefineTimings,
+    ScoringPoints,
+    refine_primitives,
+)
 from sweepedit.fitting.sweepers import load_sweeper
 from sweepedit.fitting.warmstart import warm_start_primitives
 from sweepedit.geometry.inside import inside_union
@@ -59,6 +78,9 @@ class FitSettings:
     """How to fit. `primitives` is K, the number of new primitives (locked ones come on top)."""
 
     primitives: int = 8
+    # "direct": warm start, then refinement; "network": the paper's network stage
+    # (`iterations` steps) between them.
+    method: str = "direct"
     iterations: int = 300
     sweeper: str = "analytic"
     seed: int = 0
@@ -90,6 +112,11 @@ class FitSettings:
     # (sweepedit.fitting.refine): higher spends primitives on thin parts that IoU
     # alone would leave out.
     surface_weight: float = 1.0
+    # Seconds for the whole fit (None: no limit): the best abstraction found by then is
+    # returned, never an empty one.
+    time_limit: float | None = None
+    # "auto" (CUDA when present, else the CPU), "cpu" or "cuda".
+    device: str = "auto"
 
     @property
     def refine_steps(self) -> int:
@@ -104,6 +131,9 @@ class FitSettings:
     def validate(self) -> None:
         checks = [
             (self.primitives >= 1, "primitives must be at least 1"),
+            (self.method in ("direct", "network"), "method must be 'direct' or 'network'"),
+            (self.time_limit is None or self.time_limit > 0, "time limit must be positive"),
+            (self.device in ("auto", "cpu", "cuda"), "device must be auto, cpu or cuda"),
             (self.iterations >= 1, "iterations must be at least 1"),
             (self.refine_iterations is None or self.refine_iterations >= 0,
              "refine iterations must be >= 0"),
@@ -121,15 +151,27 @@ class FitSettings:
                 raise SweepeditError(f"fit settings: {message}")
 
 
+# The stages of one restart, in the order they run ("residual round k of n" stands for
+# each round). The fit's seconds per stage (FitResult.stage_seconds) add "skeleton",
+# "pruning" and "scoring".
+STAGES = ("warm start", "network", "refinement", "residual round")
+
+
 @dataclass
 class FitProgress:
-    """A snapshot for progress bars and live previews."""
+    """A snapshot for progress bars and live previews: `iteration` of `total` steps over
+    the whole fit; `stage` (see STAGES) with its own `stage_fraction` (0..1, monotone
+    within the stage, 1 at its end); `seconds_left` an estimate (None before one can be
+    made); `abstraction` the current primitives, complete and valid."""
 
     iteration: int
     total: int
     restart: int
     losses: dict[str, float]
     abstraction: Abstraction
+    stage: str = "network"
+    stage_fraction: float = 0.0
+    seconds_left: float | None = None
 
 
 @dataclass
@@ -142,39 +184,96 @@ class FitResult:
     losses: dict[str, float]
     iou: float
     cancelled: bool
+    # Seconds per stage, summed over restarts.
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    # The time limit ended the fit before it was done.
+    timed_out: bool = False
+
+
+def resolve_device(name: str) -> str:
+    """The torch device for a FitSettings.device: "auto" is CUDA when present, else the
+    CPU; "cuda" without CUDA is an error that says so."""
+    if name == "cpu":
+        return "cpu"
+    available = torch.cuda.is_available()
+    if name == "cuda" and not available:
+        raise SweepeditError("fit settings: device 'cuda' asked for, but torch sees no CUDA "
+                             "device here (use --device cpu or auto)")
+    return "cuda" if available else "cpu"
+
+
+def configure_threads() -> None:
+    """Torch's CPU threads: one per core this process may use, and OpenMP threads that
+    sleep instead of spinning when idle (two fits on two cores spinning at each other
+    ran 5-10 times slower). Honours OMP_NUM_THREADS when set."""
+    if "OMP_NUM_THREADS" in os.environ:
+        return
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    if torch.get_num_threads() != cores:
+        torch.set_num_threads(cores)
+
+
+class _Clock:
+    """The fit's time: elapsed seconds, the time limit, cancel, and a time-left estimate
+    from the steps done so far."""
+
+    def __init__(self, limit: float | None, cancel: threading.Event, total_steps: int) -> None:
+        self.start = time.perf_counter()
+        self.limit = limit
+        self.cancel = cancel
+        self.total_steps = max(total_steps, 1)
+        self.timed_out = False
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.start
+
+    def stop(self) -> bool:
+        """True once cancelled or past the time limit (remembered as timed_out)."""
+        if self.cancel.is_set():
+            return True
+        if self.limit is not None and self.elapsed() >= self.limit:
+            self.timed_out = True
+            return True
+        return False
+
+    def seconds_left(self, steps_done: int) -> float | None:
+        elapsed = self.elapsed()
+        estimate = None
+        if steps_done > 0:
+            estimate = elapsed / steps_done * max(self.total_steps - steps_done, 0)
+        if self.limit is not None:
+            remaining = max(self.limit - elapsed, 0.0)
+            estimate = remaining if estimate is None else min(estimate, remaining)
+        return estimate
 
 
 class _Run:
-    """One fit from one seed: the network, the sweeper and the data as tensors."""
+    """The network stage of one fit from one seed: the network, the sweeper and the data
+    as tensors, started from the given primitives (padded to K with spares)."""
 
     def __init__(self, shape: Shape, settings: FitSettings, seed: int,
-                 locked: Sequence[SweepPrimitive]) -> None:
-        from sweepedit.analysis.skeleton import compute_skeleton
-
+                 locked: Sequence[SweepPrimitive], skeleton_points: np.ndarray,
+                 init: list[SweepPrimitive], device: str) -> None:
         self.settings = settings
+        self.device = torch.device(device)
         self.layout = ParamLayout(settings.control_points, settings.scaling_degree)
         torch.manual_seed(seed)
         self.rng = np.random.default_rng(seed)
         K = settings.primitives
-
-        skeleton = compute_skeleton(shape.occupancy)
-        init = warm_start_primitives(skeleton.branches, K, settings.control_points,
-                                     settings.scaling_degree)
         n_warm = len(init)
         init = _pad_primitives(init, K, self.rng, settings, shape.occupancy)
         init_params = self.layout.from_primitives(init, dtype=torch.float32)
-        # Different seeds start from slightly different places: jitter the warm start.
-        if seed:
-            init_params = init_params + 0.01 * torch.randn_like(init_params)
-            init_params = self.layout.clamp(init_params)
-
         point_input = settings.encoder == "points" or (
             settings.encoder == "auto" and shape.kind == "points")
         self.net = SweepNet(K, self.layout.size, point_input=point_input)
         self.net.warm_start(self.layout.to_unconstrained(init_params),
                             torch.tensor([_WARM_SELECTION_LOGIT] * n_warm
                                          + [_SPARE_SELECTION_LOGIT] * (K - n_warm)))
-        self.encoder_input = self._encoder_input(shape, point_input)
+        self.net.to(self.device)
+        self.encoder_input = self._encoder_input(shape, point_input).to(self.device)
         if not settings.train_encoder:
             with torch.no_grad():
                 self.code = self.net.encoder(self.encoder_input)
@@ -188,16 +287,19 @@ class _Run:
         # number of control points and scaling terms works once they know the layout.
         self.sweeper.layout = self.layout
         self.sweeper.requires_grad_(False)
+        self.sweeper.to(self.device)
 
         samples = shape.samples
-        self.points = torch.as_tensor(samples.points, dtype=torch.float32)
-        self.labels = torch.as_tensor(samples.labels, dtype=torch.float32)
+        self.points = torch.as_tensor(samples.points, dtype=torch.float32, device=self.device)
+        self.labels = torch.as_tensor(samples.labels, dtype=torch.float32, device=self.device)
         # Locked primitives do not move: their exact occupancy at the samples is fixed.
         self.locked = list(locked)
         self.locked_occupancy = torch.as_tensor(
-            inside_union(samples.points, self.locked), dtype=torch.float32) if locked else None
-        self.skeleton = torch.as_tensor(skeleton.all_points(), dtype=torch.float32)
-        self.t_axis = torch.linspace(0.0, 1.0, _AXIS_SAMPLES)
+            inside_union(samples.points, self.locked), dtype=torch.float32,
+            device=self.device) if locked else None
+        self.skeleton = torch.as_tensor(skeleton_points, dtype=torch.float32,
+                                        device=self.device)
+        self.t_axis = torch.linspace(0.0, 1.0, _AXIS_SAMPLES, device=self.device)
 
     def _encoder_input(self, shape: Shape, point_input: bool) -> torch.Tensor:
         if point_input:
@@ -214,14 +316,15 @@ class _Run:
 
     def step(self, progress: float) -> dict[str, float]:
         s, w = self.settings, self.settings.weights
-        idx = torch.as_tensor(self.rng.integers(0, len(self.points), s.batch_points))
+        idx = torch.as_tensor(self.rng.integers(0, len(self.points), s.batch_points),
+                              device=self.device)
         queries, target = self.points[idx], self.labels[idx]
         params, logits = self.outputs()
         selection = torch.sigmoid(logits)
         occupancy = self.sweeper(params[None], queries[None])  # (1, K, Q)
         if self.locked_occupancy is not None:
             occupancy = torch.cat([occupancy, self.locked_occupancy[idx][None, None]], dim=1)
-            selection_all = torch.cat([selection, torch.ones(1)])
+            selection_all = torch.cat([selection, torch.ones(1, device=self.device)])
         else:
             selection_all = selection
         union = boltzmann_union(occupancy, selection_all[None])
@@ -260,7 +363,7 @@ class _Run:
         keep = (logits > 0).nonzero().flatten().tolist()
         if not keep:  # never return an empty abstraction: keep the strongest primitive
             keep = [int(torch.argmax(logits))]
-        prims = self.layout.to_primitives(self.layout.clamp(params[keep].double()))
+        prims = self.layout.to_primitives(self.layout.clamp(params[keep].double().cpu()))
         valid = []
         for p in prims:
             try:
@@ -290,36 +393,81 @@ def _pad_primitives(init: list[SweepPrimitive], k: int, rng: np.random.Generator
     return out
 
 
+def _warm_start(shape: Shape, settings: FitSettings, seed: int,
+                skeleton_branches: Sequence) -> list[SweepPrimitive]:
+    """The warm-start primitives of one restart: one per skeleton piece (at most K, at
+    least one), jittered slightly for seeds other than 0."""
+    layout = ParamLayout(settings.control_points, settings.scaling_degree)
+    init = warm_start_primitives(skeleton_branches, settings.primitives,
+                                 settings.control_points, settings.scaling_degree)
+    rng = np.random.default_rng(seed)
+    if not init:  # no usable branch (a blob): one short spare inside the shape
+        init = _pad_primitives([], 1, rng, settings, shape.occupancy)
+    if seed:
+        torch.manual_seed(seed)
+        params = layout.from_primitives(init, dtype=torch.float64)
+        params = layout.clamp(params + 0.01 * torch.randn_like(params))
+        jittered = layout.to_primitives(params)
+        for new, old in zip(jittered, init, strict=True):
+            new.name, new.color = old.name, old.color
+        init = [p for p in jittered if _is_valid(p)] or init
+    return init
+
+
+def _is_valid(primitive: SweepPrimitive) -> bool:
+    try:
+        primitive.validate()
+    except ValueError:
+        return False
+    return True
+
+
 def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                     locked: Sequence[SweepPrimitive] = (),
                     callback: Callable[[FitProgress], None] | None = None,
                     cancel: threading.Event | None = None) -> FitResult:
-    """Fit sweep primitives to a shape: for each of `restarts` seeds, the network stage,
-    then direct refinement and pruning (sweepedit.fitting.refine); the best seed by the
-    refinement score (IoU over the grid cells and near-surface samples plus weighted
-    surface coverage).
+    """Fit sweep primitives to a shape: for each of `restarts` seeds, the warm start, the
+    network stage (method "network" only), then direct refinement and pruning
+    (sweepedit.fitting.refine); the best seed by the refinement score (IoU over the grid
+    cells and near-surface samples plus weighted surface coverage).
 
-    Locked primitives are kept unchanged and come first in the result.
+    Locked primitives are kept unchanged and come first in the result. With a time limit,
+    the best abstraction found within it is returned (the warm start at worst).
     """
+    from sweepedit.analysis.skeleton import compute_skeleton
+
     settings = settings or FitSettings()
     settings.validate()
+    device = resolve_device(settings.device)
+    configure_threads()
     cancel = cancel or threading.Event()
-    start = time.perf_counter()
-    target = np.asarray(shape.occupancy, dtype=bool)
-    if not target.any():
-        raise SweepeditError(f"{shape.path}: the shape has no volume to fit (empty occupancy)")
-    best: tuple[float, list[SweepPrimitive], dict[str, float]] | None = None
-    scoring = ScoringPoints(shape.winding_occupancy, shape.samples.points[: shape.samples.n_near],
-                            shape.samples.labels[: shape.samples.n_near], locked,
-                            surface=shape.surface_samples(SURFACE_SAMPLES, seed=0),
-                            surface_weight=settings.surface_weight)
+    stage_seconds: dict[str, float] = {}
+
+    def timed(name: str, started: float) -> None:
+        stage_seconds[name] = stage_seconds.get(name, 0.0) + time.perf_counter() - started
+
     steps = settings.refine_steps
     refine = RefineSettings(iterations=steps, start_sharpness=settings.sharpness,
                             min_gain=settings.min_gain,
                             residual_rounds=settings.residual_rounds if steps else 0,
-                            residual_iterations=steps // 2)
-    per_restart = settings.iterations + refine.total_steps
+                            residual_iterations=steps // 2, device=device)
+    network_steps = settings.iterations if settings.method == "network" else 0
+    per_restart = network_steps + refine.total_steps
     total_iterations = per_restart * settings.restarts
+    clock = _Clock(settings.time_limit, cancel, total_iterations)
+
+    started = time.perf_counter()
+    target = np.asarray(shape.occupancy, dtype=bool)
+    if not target.any():
+        raise SweepeditError(f"{shape.path}: the shape has no volume to fit (empty occupancy)")
+    scoring = ScoringPoints(shape.winding_occupancy, shape.samples.points[: shape.samples.n_near],
+                            shape.samples.labels[: shape.samples.n_near], locked,
+                            surface=shape.surface_samples(SURFACE_SAMPLES, seed=0),
+                            surface_weight=settings.surface_weight)
+    timed("voxelise", started)
+    started = time.perf_counter()
+    skeleton = compute_skeleton(shape.occupancy)
+    timed("skeleton", started)
 
     def make_abstraction(prims: list[SweepPrimitive]) -> Abstraction:
         named = []
@@ -330,65 +478,104 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
         return Abstraction([q.copy() for q in locked] + named,
                            normalization=shape.normalization)
 
-    for restart in range(settings.restarts):
-        if cancel.is_set():
-            break
-        run = _Run(shape, settings, settings.seed + restart, locked)
-        snap = run.snapshot()
-        best_loss, best_snap, losses = math.inf, snap, {}
-        for it in range(settings.iterations):
-            if cancel.is_set():
-                break
-            losses = run.step(it / max(settings.iterations - 1, 1))
-            # Judge by reconstruction: the other terms are priors, not the goal.
-            if losses["reconstruction"] < best_loss:
-                current = run.snapshot()
-                if current is not None:
-                    best_loss, best_snap = losses["reconstruction"], current
-            done = restart * per_restart + it + 1
-            if callback and (it % settings.progress_every == 0 or it == settings.iterations - 1):
-                current = run.snapshot() or best_snap
-                if current is not None:
-                    callback(FitProgress(done, total_iterations, restart, losses,
-                                         make_abstraction(run.primitives(*current, final=False))))
-        if best_snap is None:
-            continue
-        prims = run.primitives(*best_snap, final=True)
-        if cancel.is_set():
-            # A cancelled run returns at once: no refinement, and a single run has
-            # nothing to be compared with, so it is not scored either.
-            score = scoring.score(scoring.occupancy(prims).any(axis=0)) \
-                if settings.restarts > 1 else math.nan
-        else:
-            def on_refine_step(step: int, refine_losses: dict[str, float],
-                               current: list[SweepPrimitive], restart: int = restart,
-                               losses: dict[str, float] = losses) -> None:
-                if callback:
-                    done = restart * per_restart + settings.iterations + step + 1
-                    callback(FitProgress(done, total_iterations, restart,
-                                         {**losses, **refine_losses},
-                                         make_abstraction([p.copy() for p in current])))
+    def report(done: int, restart: int, losses: dict[str, float], prims: list[SweepPrimitive],
+               stage: str, fraction: float) -> None:
+        if callback:
+            callback(FitProgress(done, total_iterations, restart, losses,
+                                 make_abstraction([p.copy() for p in prims]), stage,
+                                 float(min(max(fraction, 0.0), 1.0)),
+                                 clock.seconds_left(done)))
 
-            prims, score = refine_primitives(prims, run.layout, scoring, refine,
-                                             budget=settings.primitives,
-                                             seed=settings.seed + restart, cancel=cancel,
-                                             on_step=on_refine_step,
-                                             report_every=settings.progress_every)
+    best: tuple[float, list[SweepPrimitive], dict[str, float], np.ndarray | None] | None = None
+    for restart in range(settings.restarts):
+        if restart and clock.stop():
+            break
+        seed = settings.seed + restart
+        base = restart * per_restart
+        started = time.perf_counter()
+        prims = _warm_start(shape, settings, seed, skeleton.branches)
+        timed("warm start", started)
+        report(base, restart, {}, prims, "warm start", 1.0)
+        losses: dict[str, float] = {}
+        layout = ParamLayout(settings.control_points, settings.scaling_degree)
+        if network_steps and not clock.stop():
+            started = time.perf_counter()
+            prims, losses = _network_stage(shape, settings, seed, locked, skeleton, prims,
+                                           device, clock, base, restart, report)
+            timed("network", started)
+        occupancy = None
+        if clock.stop():
+            # Cancelled or out of time: no refinement. A single run has nothing to be
+            # compared with, so it is not scored either.
+            score = math.nan
+            if settings.restarts > 1:
+                occupancy = scoring.occupancy(prims)
+                score = scoring.score(occupancy.any(axis=0))
+        else:
+            def on_refine_step(step: RefineStep, restart: int = restart, base: int = base,
+                               losses: dict[str, float] = losses) -> None:
+                report(base + network_steps + step.step + 1, restart,
+                       {**losses, **step.losses}, step.primitives, step.stage, step.fraction)
+
+            timings = RefineTimings()
+            prims, score, occupancy = refine_primitives(
+                prims, layout, scoring, refine, budget=settings.primitives, seed=seed,
+                stop=clock.stop, on_step=on_refine_step, report_every=settings.progress_every,
+                timings=timings)
+            for name, seconds in timings.seconds.items():
+                stage_seconds[name] = stage_seconds.get(name, 0.0) + seconds
         if best is None or score > best[0] or math.isnan(best[0]):
-            best = (score, prims, losses)
+            best = (score, prims, losses, occupancy)
 
     if best is None:
         raise SweepeditError(f"{shape.path}: fitting produced no valid primitive")
-    score, prims, losses = best
+    score, prims, losses, occupancy = best
     # What the restarts were judged by includes surface coverage; the record reports
     # the plain IoU over the scoring points, which a user can compare across settings.
-    iou = math.nan if math.isnan(score) else scoring.iou(scoring.occupancy(prims).any(axis=0))
+    started = time.perf_counter()
+    iou = math.nan
+    if occupancy is not None and not math.isnan(score):
+        iou = scoring.iou(occupancy.any(axis=0))
+    timed("scoring", started)
     abstraction = make_abstraction(prims)
-    seconds = time.perf_counter() - start
+    seconds = clock.elapsed()
     abstraction.source = {"path": str(shape.path), "sha256": shape.sha256}
     record: dict[str, Any] = {k: v for k, v in asdict(settings).items() if k != "weights"}
     record.update({"weights": asdict(settings.weights), "seconds": round(seconds, 3),
                    "refine_steps": steps, "cancelled": cancel.is_set(), "locked": len(locked),
+                   "device": device, "timed_out": clock.timed_out,
+                   "stage_seconds": {k: round(v, 3) for k, v in stage_seconds.items()},
                    "fit_iou": None if math.isnan(iou) else round(iou, 6)})
     abstraction.fit = record
-    return FitResult(abstraction, seconds, losses, iou, cancel.is_set())
+    return FitResult(abstraction, seconds, losses, iou, cancel.is_set(), stage_seconds,
+                     clock.timed_out)
+
+
+def _network_stage(shape: Shape, settings: FitSettings, seed: int,
+                   locked: Sequence[SweepPrimitive], skeleton: Any,
+                   init: list[SweepPrimitive], device: str, clock: _Clock, base: int,
+                   restart: int, report: Callable[..., None],
+                   ) -> tuple[list[SweepPrimitive], dict[str, float]]:
+    """SweepNet's per-shape network stage from the warm start: Adam on the heads for
+    `settings.iterations` steps; the primitives of the step with the lowest
+    reconstruction loss, and the last losses."""
+    run = _Run(shape, settings, seed, locked, skeleton.all_points(), init, device)
+    best_loss, best_snap, losses = math.inf, run.snapshot(), {}
+    for it in range(settings.iterations):
+        if clock.stop():
+            break
+        losses = run.step(it / max(settings.iterations - 1, 1))
+        # Judge by reconstruction: the other terms are priors, not the goal.
+        if losses["reconstruction"] < best_loss:
+            current = run.snapshot()
+            if current is not None:
+                best_loss, best_snap = losses["reconstruction"], current
+        last = it == settings.iterations - 1
+        if it % settings.progress_every == 0 or last:
+            current = run.snapshot() or best_snap
+            if current is not None:
+                report(base + it + 1, restart, losses, run.primitives(*current, final=False),
+                       "network", (it + 1) / settings.iterations)
+    if best_snap is None:
+        return init, losses
+    return run.primitives(*best_snap, final=True) or init, losses

@@ -145,16 +145,17 @@ class AnalyticSweeper(Sweeper):
         if rows.numel() == 0:
             return out.reshape(B, K, Q) + 0.0 * params.sum()
         S1 = st["affine"].shape[1]
-        C = bracket.shape[1]
-        flat = (rows[:, None] * S1 + bracket).reshape(-1)
-        aff = st["affine"].reshape(N * S1, 4, 6).index_select(0, flat)  # (RC, 4, 6)
-        extra = st["extra"].reshape(N * S1, 8).index_select(0, flat)  # (RC, 8)
-        qr = q.reshape(N * Q, 3).index_select(0, rows * Q + cols)  # (R, 3)
-        qh = torch.cat([qr, torch.ones_like(qr[:, :1])], dim=1)
-        if C > 1:
-            qh = qh.repeat_interleave(C, 0)
+        # Only the brackets that exist: most queries cross one plane, so evaluating all
+        # `candidates` per query would mostly compute (and differentiate) zeros.
+        hit, slot = torch.nonzero(valid, as_tuple=True)  # (V,) each
+        pair = (rows * Q + cols).index_select(0, hit)  # (V,) flat (primitive, query)
+        flat = rows.index_select(0, hit) * S1 + bracket[hit, slot]
+        aff = st["affine"].reshape(N * S1, 4, 6).index_select(0, flat)  # (V, 4, 6)
+        extra = st["extra"].reshape(N * S1, 8).index_select(0, flat)  # (V, 8)
+        qr = q.reshape(N * Q, 3).index_select(0, pair)  # (V, 3)
         # Local coordinates (h, x, y) of the query in both stations' frames.
-        h0, x0, y0, h1, x1, y1 = (qh[:, :, None] * aff).sum(1).unbind(1)
+        h0, x0, y0, h1, x1, y1 = (torch.einsum("vk,vkj->vj", qr, aff[:, :3])
+                                  + aff[:, 3]).unbind(1)
         f0, f1, e0, e1, a, b, d, total = extra.unbind(1)
         denom = h0 - h1
         denom = torch.where(denom.abs() < 1e-12, torch.full_like(denom, 1e-12), denom)
@@ -171,10 +172,8 @@ class AnalyticSweeper(Sweeper):
         # Intersection of the profile and the two end caps as the minimum of their signed
         # distances, so that the 0.5 level is exactly the (linearised) boundary.
         occ = torch.sigmoid(k * torch.minimum(-sd, torch.minimum(e, total - e)))
-        occ = torch.where(valid.reshape(-1), occ, torch.zeros_like(occ))
-        if C > 1:
-            occ = occ.reshape(-1, C).amax(dim=1)
-        out = out.index_put((rows * Q + cols,), occ)
+        # A query's occupancy is the largest over its brackets.
+        out = out.scatter_reduce(0, pair, occ, reduce="amax", include_self=True)
         return out.reshape(B, K, Q)
 
     def _stations(self, params: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -223,53 +222,42 @@ class AnalyticSweeper(Sweeper):
 
     @torch.no_grad()
     def _brackets(self, q: torch.Tensor, st: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
-        """The brackets nearest to each in-box query (no gradient).
+        """The brackets nearest to each in-box query (no gradient), for all primitives in
+        one batched call (a Python loop over primitives cost more than the arithmetic).
 
         q (N, Q, 3) -> rows, cols (R,): (primitive, query) pairs with the query in the
-        primitive's box; bracket (R, C): indices i of the `candidates` brackets [i, i+1]
-        where h changes sign whose station i is nearest to the query; valid (R, C): False
-        where there are fewer brackets.
+        primitive's box and within reach of its coarse stations; bracket (R, C): indices
+        i of the `candidates` brackets [i, i+1] where h changes sign whose station i is
+        nearest to the query; valid (R, C): False where there are fewer brackets.
         """
-        N = q.shape[0]
-        pts, tan = st["points"].detach(), st["tangents"].detach()
+        pts, tan = st["points"].detach(), st["tangents"].detach()  # (N, S+2, 3)
         coarse, reach = st["coarse"].detach(), st["reach"].detach()
-        offs = (pts * tan).sum(-1)  # (N, S+2)
-        sq = (pts[:, :-1] ** 2).sum(-1)  # (N, S+1)
-        inside = ((q >= st["box_lo"].detach()[:, None])
-                  & (q <= st["box_hi"].detach()[:, None])).all(-1)  # (N, Q)
-        rows_l, cols_l, idx_l, ok_l = [], [], [], []
-        for n in range(N):
-            cols = torch.nonzero(inside[n]).squeeze(1)
-            if cols.numel() == 0:
-                continue
-            qs = q[n].index_select(0, cols)
-            co = coarse[n]
-            near = torch.addmm((co * co).sum(-1), qs, co.T, alpha=-2.0).amin(dim=1) + (
-                qs * qs).sum(-1) <= reach[n] ** 2
-            if not bool(near.all()):
-                cols, qs = cols[near], qs[near]
-                if cols.numel() == 0:
-                    continue
-            h = torch.addmm(-offs[n], qs, tan[n].T)  # (Qn, S+2)
-            same = (h[:, :-1] * h[:, 1:]) > 0.0  # no sign change in the bracket
-            d2 = torch.addmm(sq[n], qs, pts[n, :-1].T, alpha=-2.0)  # |p|^2 - 2 q.p
-            d2.masked_fill_(same, math.inf)
-            vals, idxs = [], []
-            for c in range(self.candidates):
-                val, idx = d2.min(dim=1, keepdim=True)
-                vals.append(val)
-                idxs.append(idx)
-                if c + 1 < self.candidates:
-                    d2.scatter_(1, idx, math.inf)
-            rows_l.append(torch.full_like(cols, n))
-            cols_l.append(cols)
-            idx_l.append(torch.cat(idxs, dim=1))
-            ok_l.append(torch.isfinite(torch.cat(vals, dim=1)))
-        if not rows_l:
+        q2 = (q * q).sum(-1, keepdim=True)  # (N, Q, 1)
+        keep = ((q >= st["box_lo"].detach()[:, None])
+                & (q <= st["box_hi"].detach()[:, None])).all(-1)  # (N, Q)
+        # |q - c|^2 to every coarse station: (N, Q, Sc), one batched matmul.
+        d2c = torch.baddbmm((coarse * coarse).sum(-1)[:, None], q, coarse.transpose(1, 2),
+                            alpha=-2.0) + q2
+        keep &= d2c.amin(dim=2) <= (reach * reach)[:, None]
+        rows, cols = torch.nonzero(keep, as_tuple=True)
+        C = self.candidates
+        if rows.numel() == 0:
             empty = torch.zeros(0, dtype=torch.long, device=q.device)
-            return empty, empty, empty[:, None], torch.zeros(0, 1, dtype=torch.bool,
-                                                              device=q.device)
-        return torch.cat(rows_l), torch.cat(cols_l), torch.cat(idx_l), torch.cat(ok_l)
+            return empty, empty, empty[:, None].expand(0, C), torch.zeros(
+                0, C, dtype=torch.bool, device=q.device)
+        # h and |p|^2 - 2 q.p at every station for all pairs as batched matmuls (cheaper
+        # than gathering each kept pair's stations), then the kept pairs' rows.
+        offs = (pts * tan).sum(-1)  # (N, S+2)
+        pairs = rows * q.shape[1] + cols
+        h = torch.baddbmm(-offs[:, None], q, tan.transpose(1, 2)).flatten(0, 1).index_select(
+            0, pairs)  # (R, S+2)
+        base = pts[:, :-1]
+        d2 = torch.baddbmm((base * base).sum(-1)[:, None], q, base.transpose(1, 2),
+                           alpha=-2.0).flatten(0, 1).index_select(0, pairs)  # (R, S+1)
+        d2.masked_fill_((h[:, :-1] * h[:, 1:]) > 0.0, math.inf)  # no sign change there
+        C = min(C, d2.shape[1])
+        vals, idx = torch.topk(d2, C, dim=1, largest=False, sorted=True)
+        return rows, cols, idx, torch.isfinite(vals)
 
 
 # ----------------------------------------------------------------------------------------
