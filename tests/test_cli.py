@@ -270,3 +270,37 @@ def test_a_closed_output_pipe_ends_quietly() -> None:
         os.close(write_end)
     assert proc.returncode == 141
     assert proc.stderr == ""
+
+
+def test_fit_time_limit_returns_in_time_with_a_valid_file(tmp_path: Path, capsys) -> None:
+    import time
+
+    from sweepedit.cli import _fit_settings, build_parser
+
+    cactus = Path(__file__).resolve().parents[1] / "resources" / "examples" / "cactus.off"
+    out = tmp_path / "cactus.json"
+    start = time.perf_counter()
+    assert run("fit", cactus, "-o", out, "--time-limit", "3", "--quiet") == 0
+    elapsed = time.perf_counter() - start
+    assert elapsed <= 4.0, elapsed
+    abstraction = read_abstraction(out)
+    assert len(abstraction) >= 1
+    for p in abstraction.primitives:
+        p.validate()
+    assert abstraction.fit["time_limit"] is not None
+    args = build_parser().parse_args(["fit", "s.obj", "-o", "o.json", "--method", "network",
+                                      "--device", "cpu", "--time-limit", "2.5"])
+    settings = _fit_settings(args)
+    assert (settings.method, settings.device, settings.time_limit) == ("network", "cpu", 2.5)
+
+
+def test_fit_progress_text_names_the_stage_and_the_time_left() -> None:
+    from types import SimpleNamespace
+
+    from sweepedit.cli import fit_progress_text
+
+    p = SimpleNamespace(stage="residual round 1 of 2", stage_fraction=0.4, seconds_left=3.2,
+                        restart=0, abstraction=Abstraction([]))
+    desc, postfix = fit_progress_text(p)
+    assert desc == "residual round 1 of 2"
+    assert "40% of stage" in postfix and "~3 s left" in postfix

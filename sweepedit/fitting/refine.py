@@ -9,14 +9,19 @@ seen by only a few of them. Refinement takes the kept primitives and optimises t
 parameters themselves (through the unconstrained form of ParamLayout, so they stay in
 range) with Adam on the binary cross-entropy of the soft union:
 
-- on the points where the result is decided: the cell centres of the fitting grid within
-  `band` cells of the shape or of the current abstraction (labelled by the shape's
-  inside test at the cell centres), plus the near-surface fitting samples;
+- on the points where the gradient is: the cell centres of the fitting grid within
+  `band` cells of the shape's or the current union's boundary, or where the two
+  disagree (labelled by the shape's inside test at the cell centres), plus the
+  near-surface fitting samples. Cells deep inside both are left out: the soft
+  occupancy is saturated there (sampling the whole interior, as before, spent most
+  steps on them: on 8 benchmark shapes the shell raised mean IoU 0.810 -> 0.823);
 - with the analytic sweeper's sharpness annealed geometrically towards the exact test
   (the neural sweeper has no sharpness to anneal, so refinement always uses the
   analytic one);
 - the band is recomputed, and the result scored, with the exact inside test every
-  `refresh` steps; the best state by that score is what is returned.
+  `refresh` steps (on the shell where the union can have moved); the best state by
+  that score is what is returned, and a pass ends once `patience` refreshes in a row
+  have not raised it.
 
 Then `prune` drops, one at a time, every primitive whose removal costs at most
 `min_gain` of the score: primitives that add next to nothing cost the user attention.
