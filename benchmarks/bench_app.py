@@ -12,12 +12,24 @@
 3. Cancel latency: cancel_fit() until the best result is applied (target <= 1 s).
 4. Opening a shape (File > Open, real loader: voxelise, sample, skeleton): wall time and the
    largest gap of a 10 ms QTimer meanwhile (the loader runs off the GUI thread).
+5. Start -> the first complete abstraction in the scene (its frame rendered), median over
+   the shapes of a folder (--shapes, default ../shared/shapes; --limit N for the first N):
+   once the fitting code has loaded in the background (Start pressed after the preload),
+   and for the first fit of a session (Start pressed as the window shows, torch still
+   loading).
+6. The longest event-loop stall from pressing Start until the fit's result is applied,
+   first fit of the session included (target <= 100 ms).
+Sections 5 and 6 run sweepedit.app.probe in a fresh process per shape and measurement
+(two per shape, --time-limit seconds of fitting each); --first-fit-only skips 1-4.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import statistics
+import subprocess
 import sys
 import threading
 import time
@@ -30,6 +42,7 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 SHAPE = SHARED / "shapes" / "ant.ply"
 PARAMS = SHARED / "sweepnet_params" / "ant.txt"
 OPEN_SHAPE = SHARED / "shapes" / "elephant.off"
+SHAPE_SUFFIXES = {".obj", ".ply", ".stl", ".off", ".glb", ".gltf"}
 
 
 def spin(app, seconds: float, until=None) -> None:
@@ -65,6 +78,70 @@ def stand_in_fit(shape, settings, *, locked=(), callback=None, cancel=None):
     return SimpleNamespace(abstraction=best, seconds=0.0, cancelled=True)
 
 
+def probe(shape: Path, time_limit: float, preloaded: bool) -> dict:
+    """sweepedit.app.probe on `shape` in a fresh process (so torch is not yet imported)."""
+    command = [sys.executable, "-m", "sweepedit.app.probe", str(shape),
+               "--time-limit", str(time_limit)] + (["--preloaded"] if preloaded else [])
+    env = dict(os.environ)
+    env.setdefault("OMP_NUM_THREADS", "1")
+    proc = subprocess.run(command, capture_output=True, text=True, env=env, timeout=600,
+                          cwd=Path(__file__).resolve().parents[1])
+    lines = proc.stdout.strip().splitlines()
+    if not lines:
+        return {"errors": [f"probe failed (exit {proc.returncode}): {proc.stderr[-500:]}"]}
+    return json.loads(lines[-1])
+
+
+def first_fit_section(folder: Path, limit: int | None, time_limit: float) -> int:
+    """Sections 5 and 6: Start -> first abstraction in the scene, and the longest stall."""
+    shapes = sorted(p for p in folder.iterdir() if p.suffix.lower() in SHAPE_SUFFIXES)
+    shapes = shapes[:limit] if limit else shapes
+    if not shapes:
+        print(f"5./6. no shapes in {folder}")
+        return 1
+    print(f"5./6. first abstraction and stalls: {len(shapes)} shapes from {folder}, "
+          f"fit time limit {time_limit:g} s, one fresh process per measurement")
+    print(f"   {'shape':<16} {'loaded: first frame':>20} {'max gap':>8}   "
+          f"{'first fit: first frame':>23} {'max gap':>8}")
+    rows = []
+    for shape in shapes:
+        warm = probe(shape, time_limit, preloaded=True)
+        cold = probe(shape, time_limit, preloaded=False)
+        rows.append((shape.name, warm, cold))
+
+        def cell(r: dict) -> str:
+            frame = r.get("first_frame_s")
+            return f"{frame:7.2f} s" if frame is not None else "      —"
+
+        def gap(r: dict) -> str:
+            return f"{r['max_gap_ms']:5.0f} ms" if "max_gap_ms" in r else "      —"
+
+        print(f"   {shape.name:<16} {cell(warm):>20} {gap(warm):>8}   {cell(cold):>23} "
+              f"{gap(cold):>8}", flush=True)
+        for r in (warm, cold):
+            for error in r.get("errors", []):
+                print(f"      error: {error}")
+    warm_frames = [w["first_frame_s"] for _, w, _ in rows if w.get("first_frame_s") is not None]
+    cold_frames = [c["first_frame_s"] for _, _, c in rows if c.get("first_frame_s") is not None]
+    gaps = [(r["max_gap_ms"], name, kind) for name, w, c in rows
+            for kind, r in (("loaded", w), ("first fit", c)) if "max_gap_ms" in r]
+    if warm_frames:
+        print(f"5. Start -> first complete abstraction in the scene, fitting code loaded: "
+              f"median {statistics.median(warm_frames):.2f} s, max {max(warm_frames):.2f} s "
+              f"({len(warm_frames)} shapes)")
+    if cold_frames:
+        print(f"   first fit of the session (torch still loading at Start): median "
+              f"{statistics.median(cold_frames):.2f} s, max {max(cold_frames):.2f} s")
+    if gaps:
+        worst = max(gaps)
+        first_fit = [g for g, _, kind in gaps if kind == "first fit"]
+        print(f"6. longest event-loop stall from pressing Start: {worst[0]:.0f} ms "
+              f"({worst[1]}, {worst[2]}); first fits of the session: median "
+              f"{statistics.median(first_fit):.0f} ms  (target <= 100)")
+    failed = len(shapes) - min(len(warm_frames), len(cold_frames))
+    return 1 if failed else 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -73,7 +150,19 @@ def main() -> int:
                         help="how long to watch the event loop while the fit runs")
     parser.add_argument("--stand-in", action="store_true",
                         help="use the GIL-holding stand-in even if the real fit imports")
+    parser.add_argument("--shapes", type=Path, default=SHARED / "shapes",
+                        help="folder of shapes for sections 5 and 6")
+    parser.add_argument("--limit", type=int, default=None,
+                        help="only the first N shapes (by name) of --shapes")
+    parser.add_argument("--time-limit", type=float, default=5.0,
+                        help="the fit's time limit in sections 5 and 6 (seconds)")
+    parser.add_argument("--first-fit-only", action="store_true",
+                        help="run sections 5 and 6 only")
     args = parser.parse_args()
+    # First, while nothing else in this process holds the CPU: fresh processes each.
+    status = first_fit_section(args.shapes, args.limit, args.time_limit)
+    if args.first_fit_only:
+        return status
 
     from PySide6.QtCore import QSettings, QTimer
     from PySide6.QtWidgets import QApplication

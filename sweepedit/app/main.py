@@ -89,7 +89,7 @@ def screenshot(path_in: str, png_out: str, full_window: bool = True,
     from sweepedit.app.window import MainWindow
 
     errors: list[str] = []
-    window = MainWindow()
+    window = MainWindow(preload_fit=False)  # no fit here: torch would only slow the exit
     window.report_error = lambda title, message: errors.append(f"{title}: {message}")  # type: ignore[method-assign]
     window.ask_save_changes = lambda: "discard"  # type: ignore[method-assign]
     window.resize(*size)

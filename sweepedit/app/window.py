@@ -48,10 +48,11 @@ from sweepedit.app.panels import FitPanel, PrimitiveListPanel, PropertiesPanel
 from sweepedit.app.scene import SceneMouse, SweepScene
 from sweepedit.app.worker import (
     FitThread,
+    FitUpdate,
     MetricsRunner,
     call_keeping_window_live,
     load_fit_api,
-    make_settings,
+    preload_fit_api,
     with_locked,
 )
 from sweepedit.errors import SweepeditError
@@ -65,6 +66,8 @@ MESH_EXPORT_TYPES = {"OBJ (*.obj)": "obj", "PLY (*.ply)": "ply", "STL (*.stl)": 
 MAX_RECENT = 10
 MULTI_SAMPLES = 0  # anti-aliasing: FXAA, and only on a GPU (see _check_antialiasing)
 SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "swiftshader", "software rasterizer")
+# Fit threads that outlived their window, kept referenced (see closeEvent).
+_orphan_threads: list[FitThread] = []
 
 HELP_TEXT = """<b>Mouse</b><br>
 Left-drag: rotate · Shift+left-drag or middle-drag: pan · wheel / right-drag: zoom<br>
@@ -105,10 +108,13 @@ def is_parameter_file(path: str | Path) -> bool:
 
 
 class MainWindow(QMainWindow):
-    """SweepEdit's main window. `settings` defaults to the user's QSettings (recent files)."""
+    """SweepEdit's main window. `settings` defaults to the user's QSettings (recent files);
+    `preload_fit`: import the fitting code in the background once the window is shown."""
 
-    def __init__(self, settings: QSettings | None = None, parent: QWidget | None = None) -> None:
+    def __init__(self, settings: QSettings | None = None, parent: QWidget | None = None,
+                 preload_fit: bool = True) -> None:
         super().__init__(parent)
+        self.preload_fit = preload_fit
         from pyvistaqt import QtInteractor  # heavy import, only when a window is made
 
         self.settings = settings if settings is not None else QSettings("sweepedit", "sweepedit")
@@ -308,6 +314,10 @@ class MainWindow(QMainWindow):
         if not self._antialiasing_checked:
             self._antialiasing_checked = True
             QTimer.singleShot(0, self._check_antialiasing)
+            if self.preload_fit:
+                # torch takes seconds to import: start now, in the background, so that it
+                # is normally there by the time the user presses Start.
+                QTimer.singleShot(0, preload_fit_api)
 
     def _check_antialiasing(self) -> None:
         """FXAA costs ~50 ms a frame on software GL (Xvfb, VMs) but nothing on a GPU."""
@@ -682,29 +692,30 @@ class MainWindow(QMainWindow):
 
     # -- fitting --------------------------------------------------------------------------
     def start_fit(self, values: dict[str, Any]) -> bool:
-        """Start a background fit with the fit panel's values; False if it cannot start."""
+        """Start a background fit with the fit panel's values; False if it cannot start.
+
+        Nothing here imports torch: the fit thread loads the fitting code itself (or waits
+        for the preload that started with the window) and reports a bad setting or
+        missing fitting code through its failed signal."""
         if self.fitting:
             return False
         if self.doc.shape is None:
             self.report_error("Cannot fit", "Open a shape first: the fit needs a target.")
             return False
-        try:
-            fit_function, settings_type = load_fit_api()
-            settings = make_settings(settings_type, values)
-        except Exception as exc:
-            self.report_error("Cannot fit", f"Fitting is not available: {exc}")
-            return False
         self._fit_values = dict(values)
         self._fit_locked = [p.copy() for p in self.doc.primitives if p.locked]
         self.stack.close_merge()
-        thread = FitThread(self.doc.shape, settings, self._fit_locked, fit_function, self)
+        # load_fit_api is looked up now, so that tests can substitute a stand-in.
+        thread = FitThread(self.doc.shape, dict(values), self._fit_locked, parent=self,
+                           load_api=load_fit_api)
+        thread.note.connect(self._on_fit_note)
         thread.progress.connect(self._on_fit_progress)
         thread.done.connect(self._on_fit_done)
         thread.failed.connect(self._on_fit_failed)
         thread.finished.connect(self._on_fit_thread_finished)
         self._fit_thread = thread
         self._fit_started = time.perf_counter()
-        self.fit_panel.begin(int(values.get("iterations", 0)))
+        self.fit_panel.begin()
         self.props_panel.set_editable(False)
         self._update_actions()
         self.metrics.cancel()
@@ -717,25 +728,38 @@ class MainWindow(QMainWindow):
             self._fit_thread.cancel()
             self.fit_panel.status.setText("Cancelling… (keeping the best result)")
 
-    def _on_fit_progress(self, iteration: int, total: int, batch: list, abstraction: Any) -> None:
+    def _on_fit_note(self, text: str) -> None:
+        if self._fit_thread is not None and not self._fit_thread.cancel_event.is_set():
+            self.fit_panel.status.setText(text)
+
+    def _on_fit_progress(self, update: FitUpdate) -> None:
         if self._fit_thread is None:
             return
-        self.fit_panel.show_progress(iteration, total, batch)
-        if abstraction is not None:
-            self.scene.show_preview(with_locked(abstraction, self._fit_locked))
+        if not self._fit_thread.cancel_event.is_set():  # keep "Cancelling…" up
+            self.fit_panel.show_progress(update)
+        if update.abstraction is not None:
+            # Every report carries a complete abstraction, the first one (the warm start)
+            # included: the scene shows it at once and each later one replaces it.
+            self.scene.show_preview(with_locked(update.abstraction, self._fit_locked))
 
     def _on_fit_done(self, result: Any) -> None:
         if self._fit_thread is None:  # the window closed meanwhile
             return
-        self.last_fit_result = result
         thread = self._fit_thread
         cancelled = thread.cancel_event.is_set()
+        if result is None:  # cancelled before the fit began
+            self.scene.end_preview()
+            self._finish_fit()
+            self.fit_panel.finish("Cancelled before the fit began; nothing changed.")
+            return
+        self.last_fit_result = result
         if cancelled and thread.cancel_requested_at and thread.returned_at:
             self.last_cancel_timing = {"fit_returned_s": thread.returned_at
                                        - thread.cancel_requested_at}
         self.scene.end_preview()
         prims = with_locked(result.abstraction, self._fit_locked)
         seconds = float(getattr(result, "seconds", time.perf_counter() - self._fit_started))
+        timed_out = bool(getattr(result, "timed_out", False))
         record = dict(result.abstraction.fit or {})
         record.update({k: v for k, v in self._fit_values.items() if k not in record})
         record.setdefault("seconds", seconds)
@@ -748,7 +772,8 @@ class MainWindow(QMainWindow):
             self.fit_panel.finish("The fit returned invalid primitives.")
             return
         self.doc.select(None)
-        how = "Cancelled; kept the best result" if cancelled else "Done"
+        how = ("Cancelled; kept the best result" if cancelled
+               else "Time limit reached; kept the best result" if timed_out else "Done")
         self.fit_panel.finish(f"{how}: {len(prims)} primitives in {seconds:.1f} s "
                               "(Ctrl+Z undoes it)")
 
@@ -777,10 +802,14 @@ class MainWindow(QMainWindow):
             return
         thread = self._fit_thread
         if thread is not None:
-            for signal in (thread.progress, thread.done, thread.failed):
+            for signal in (thread.note, thread.progress, thread.done, thread.failed):
                 signal.disconnect()
             thread.cancel()
-            thread.wait(5000)
+            if not thread.wait(5000):
+                # Still importing torch (a slow first start): destroying a running QThread
+                # aborts the process, so it outlives the window (a few seconds).
+                thread.setParent(None)
+                _orphan_threads.append(thread)
             self._fit_thread = None
         self.metrics.shutdown()
         self.plotter.close()
