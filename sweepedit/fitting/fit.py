@@ -203,9 +203,9 @@ def resolve_device(name: str) -> str:
 
 
 def configure_threads() -> None:
-    """Torch's CPU threads: one per core this process may use, and OpenMP threads that
-    sleep instead of spinning when idle (two fits on two cores spinning at each other
-    ran 5-10 times slower). Honours OMP_NUM_THREADS when set."""
+    """Torch's CPU threads: one per core this process may use (a worker pinned to some
+    cores, as a batch scheduler does, gets that many rather than the machine's count,
+    so that two fits never fight over one core). Honours OMP_NUM_THREADS when set."""
     if "OMP_NUM_THREADS" in os.environ:
         return
     try:

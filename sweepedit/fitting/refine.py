@@ -95,6 +95,10 @@ class RefineSettings:
     # A pass ends early once this many exact refreshes in a row have not raised the
     # score: later steps only polish what the next refresh would reject anyway.
     patience: int = 3
+    # Axis stations of the analytic sweeper while refining (its bracket search, a dense
+    # primitives x points x stations pass, is ~40 % of a step; 32 stations were 15 %
+    # faster but lost a little IoU and F1@0.01 on 8 benchmark shapes).
+    stations: int = 48
     # Exact-test samples along the axis while scoring refreshes (the metric's test uses
     # 256; scoring only ranks states of one fit, and its cost is linear in this).
     scoring_t_samples: int = 128
@@ -375,7 +379,7 @@ def _refine_pass(prims: list[SweepPrimitive], layout: ParamLayout, points: Scori
                                                             device=device))
     logits = logits.clone().requires_grad_(True)
     optimizer = torch.optim.Adam([logits], lr=settings.learning_rate)
-    sweeper = AnalyticSweeper(sharpness=settings.start_sharpness)
+    sweeper = AnalyticSweeper(sharpness=settings.start_sharpness, stations=settings.stations)
     sweeper.layout = layout
     all_points = torch.as_tensor(points.points, dtype=torch.float32, device=device)
     all_labels = torch.as_tensor(points.labels, dtype=torch.float32, device=device)
