@@ -9,7 +9,9 @@ evaluate_sweeper.py  accuracy against the exact inside test, and speed
 network.py           SweepNet: voxel / point encoder, MLP, primitive and selection heads
 losses.py            reconstruction (Boltzmann union), overlap, parsimony, axis losses
 warmstart.py         primitives from the skeleton's branches
-fit.py               the per-shape fit: warm start, network stage, refinement, restarts
+fit.py               the per-shape fit: warm start, then refinement (the default "direct"
+                     method) or SweepNet's network stage first ("network"); stages,
+                     progress, time limit, device, restarts
 refine.py            direct refinement of the fitted parameters, pruning, residual rounds
 bench.py             `sweepedit bench`: fit a folder of shapes, table and contact sheet
 """
