@@ -176,3 +176,35 @@ def test_surface_weight_keeps_a_thin_part_that_iou_alone_would_prune() -> None:
     min_gain = 2 * thin_iou_gain
     assert prune(occupancy, plain, min_gain) == [0]
     assert prune(occupancy, weighted, min_gain) == [0, 1]
+
+
+def test_boundary_cells_leave_out_the_deep_interior_and_keep_every_disagreement() -> None:
+    from scipy import ndimage as ndi
+
+    points = truth_points([FAT])
+    shape = points.grid_target
+    covered = np.zeros(len(points.points), dtype=bool)
+    covered[: points.n_cells] = shape.reshape(-1)
+    cells = np.zeros(shape.size, dtype=bool)
+    cells[points.boundary_cells(covered, 2)] = True
+    cells = cells.reshape(shape.shape)
+    # Independent truth: the shell is the dilation minus the erosion of the shape.
+    shell = ndi.binary_dilation(shape, iterations=2) & ~ndi.binary_erosion(shape, iterations=2)
+    np.testing.assert_array_equal(cells, shell)
+    assert (shape & ~cells).any()  # the deep interior is left out
+    # A union cell far from the shape (a false positive) is always sampled.
+    far = np.zeros(shape.shape, dtype=bool)
+    far[2, 2, 2] = True
+    covered[: points.n_cells] |= far.reshape(-1)
+    assert np.ravel_multi_index((2, 2, 2), shape.shape) in points.boundary_cells(covered, 2)
+
+
+def test_union_near_equals_the_exact_union_after_a_small_move() -> None:
+    points = truth_points([ARCH])
+    before = points.occupancy([ARCH]).any(axis=0)
+    moved = ARCH.copy()
+    moved.control_points = moved.control_points + np.array([0.02, -0.015, 0.01])  # < 1 cell
+    moved.a *= 1.05
+    exact = points.occupancy([moved]).any(axis=0)
+    near = points.union_near([moved], before, width=3)
+    np.testing.assert_array_equal(near, exact)

@@ -199,12 +199,6 @@ class ScoringPoints:
                 grid, iterations=width)
         return np.flatnonzero(near | (union != self.grid_target))
 
-    def band_cells(self, covered: np.ndarray, width: int) -> np.ndarray:
-        """Flat indices of the cells within `width` cells of the shape or of the union
-        covered (N,) bool: where the result is decided."""
-        grid = covered[: self.n_cells].reshape(self.grid_target.shape) | self.grid_target
-        return np.flatnonzero(ndi.binary_dilation(grid, iterations=width))
-
 
 def _reach_matrix(surface: np.ndarray, points: np.ndarray, reach: float) -> sparse.csr_matrix:
     """(M, N) sparse 0/1: which of points (N, 3) lie within reach of each of surface (M, 3)."""
