@@ -46,8 +46,8 @@ from sweepedit.fitting.params import ParamLayout
 from sweepedit.fitting.refine import (
     RefineSettings,
     RefineStep,
-    RefineTimings,
     ScoringPoints,
+    StageTimings,
     refine_primitives,
 )
 from sweepedit.fitting.sweepers import load_sweeper
@@ -152,8 +152,8 @@ class FitSettings:
 
 
 # The stages of one restart, in the order they run ("residual round k of n" stands for
-# each round). The fit's seconds per stage (FitResult.stage_seconds) add "skeleton",
-# "pruning" and "scoring".
+# each round). The fit's seconds per stage (FitResult.stage_seconds) add "voxelise",
+# "skeleton", "pruning" and "scoring", and count all residual rounds as one.
 STAGES = ("warm start", "network", "refinement", "residual round")
 
 
@@ -364,14 +364,7 @@ class _Run:
         if not keep:  # never return an empty abstraction: keep the strongest primitive
             keep = [int(torch.argmax(logits))]
         prims = self.layout.to_primitives(self.layout.clamp(params[keep].double().cpu()))
-        valid = []
-        for p in prims:
-            try:
-                p.validate()
-            except ValueError:
-                continue
-            valid.append(p)
-        return valid
+        return [p for p in prims if _is_valid(p)]
 
 
 def _pad_primitives(init: list[SweepPrimitive], k: int, rng: np.random.Generator,
@@ -393,11 +386,10 @@ def _pad_primitives(init: list[SweepPrimitive], k: int, rng: np.random.Generator
     return out
 
 
-def _warm_start(shape: Shape, settings: FitSettings, seed: int,
+def _warm_start(shape: Shape, settings: FitSettings, layout: ParamLayout, seed: int,
                 skeleton_branches: Sequence) -> list[SweepPrimitive]:
     """The warm-start primitives of one restart: one per skeleton piece (at most K, at
     least one), jittered slightly for seeds other than 0."""
-    layout = ParamLayout(settings.control_points, settings.scaling_degree)
     init = warm_start_primitives(skeleton_branches, settings.primitives,
                                  settings.control_points, settings.scaling_degree)
     rng = np.random.default_rng(seed)
@@ -441,10 +433,8 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     device = resolve_device(settings.device)
     configure_threads()
     cancel = cancel or threading.Event()
-    stage_seconds: dict[str, float] = {}
-
-    def timed(name: str, started: float) -> None:
-        stage_seconds[name] = stage_seconds.get(name, 0.0) + time.perf_counter() - started
+    timings = StageTimings()
+    layout = ParamLayout(settings.control_points, settings.scaling_degree)
 
     steps = settings.refine_steps
     refine = RefineSettings(iterations=steps, start_sharpness=settings.sharpness,
@@ -456,18 +446,18 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     total_iterations = per_restart * settings.restarts
     clock = _Clock(settings.time_limit, cancel, total_iterations)
 
-    started = time.perf_counter()
-    target = np.asarray(shape.occupancy, dtype=bool)
-    if not target.any():
-        raise SweepeditError(f"{shape.path}: the shape has no volume to fit (empty occupancy)")
-    scoring = ScoringPoints(shape.winding_occupancy, shape.samples.points[: shape.samples.n_near],
-                            shape.samples.labels[: shape.samples.n_near], locked,
-                            surface=shape.surface_samples(SURFACE_SAMPLES, seed=0),
-                            surface_weight=settings.surface_weight)
-    timed("voxelise", started)
-    started = time.perf_counter()
-    skeleton = compute_skeleton(shape.occupancy)
-    timed("skeleton", started)
+    with timings.measure("voxelise"):
+        target = np.asarray(shape.occupancy, dtype=bool)
+        if not target.any():
+            raise SweepeditError(f"{shape.path}: the shape has no volume to fit "
+                                 "(empty occupancy)")
+        scoring = ScoringPoints(shape.winding_occupancy,
+                                shape.samples.points[: shape.samples.n_near],
+                                shape.samples.labels[: shape.samples.n_near], locked,
+                                surface=shape.surface_samples(SURFACE_SAMPLES, seed=0),
+                                surface_weight=settings.surface_weight)
+    with timings.measure("skeleton"):
+        skeleton = compute_skeleton(shape.occupancy)
 
     def make_abstraction(prims: list[SweepPrimitive]) -> Abstraction:
         named = []
@@ -492,17 +482,14 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
             break
         seed = settings.seed + restart
         base = restart * per_restart
-        started = time.perf_counter()
-        prims = _warm_start(shape, settings, seed, skeleton.branches)
-        timed("warm start", started)
+        with timings.measure("warm start"):
+            prims = _warm_start(shape, settings, layout, seed, skeleton.branches)
         report(base, restart, {}, prims, "warm start", 1.0)
         losses: dict[str, float] = {}
-        layout = ParamLayout(settings.control_points, settings.scaling_degree)
         if network_steps and not clock.stop():
-            started = time.perf_counter()
-            prims, losses = _network_stage(shape, settings, seed, locked, skeleton, prims,
-                                           device, clock, base, restart, report)
-            timed("network", started)
+            with timings.measure("network"):
+                prims, losses = _network_stage(shape, settings, seed, locked, skeleton, prims,
+                                               device, clock, base, restart, report)
         occupancy = None
         if clock.stop():
             # Cancelled or out of time: no refinement. A single run has nothing to be
@@ -517,13 +504,10 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                 report(base + network_steps + step.step + 1, restart,
                        {**losses, **step.losses}, step.primitives, step.stage, step.fraction)
 
-            timings = RefineTimings()
             prims, score, occupancy = refine_primitives(
                 prims, layout, scoring, refine, budget=settings.primitives, seed=seed,
                 stop=clock.stop, on_step=on_refine_step, report_every=settings.progress_every,
                 timings=timings)
-            for name, seconds in timings.seconds.items():
-                stage_seconds[name] = stage_seconds.get(name, 0.0) + seconds
         if best is None or score > best[0] or math.isnan(best[0]):
             best = (score, prims, losses, occupancy)
 
@@ -532,11 +516,10 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     score, prims, losses, occupancy = best
     # What the restarts were judged by includes surface coverage; the record reports
     # the plain IoU over the scoring points, which a user can compare across settings.
-    started = time.perf_counter()
     iou = math.nan
     if occupancy is not None and not math.isnan(score):
-        iou = scoring.iou(occupancy.any(axis=0))
-    timed("scoring", started)
+        with timings.measure("scoring"):
+            iou = scoring.iou(occupancy.any(axis=0))
     abstraction = make_abstraction(prims)
     seconds = clock.elapsed()
     abstraction.source = {"path": str(shape.path), "sha256": shape.sha256}
@@ -544,10 +527,10 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     record.update({"weights": asdict(settings.weights), "seconds": round(seconds, 3),
                    "refine_steps": steps, "cancelled": cancel.is_set(), "locked": len(locked),
                    "device": device, "timed_out": clock.timed_out,
-                   "stage_seconds": {k: round(v, 3) for k, v in stage_seconds.items()},
+                   "stage_seconds": {k: round(v, 3) for k, v in timings.seconds.items()},
                    "fit_iou": None if math.isnan(iou) else round(iou, 6)})
     abstraction.fit = record
-    return FitResult(abstraction, seconds, losses, iou, cancel.is_set(), stage_seconds,
+    return FitResult(abstraction, seconds, losses, iou, cancel.is_set(), timings.seconds,
                      clock.timed_out)
 
 

@@ -43,7 +43,8 @@ thin limb, yet the missed limb is what the surface metrics (F1, Chamfer) count.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -273,13 +274,20 @@ StepCallback = Callable[[RefineStep], None]
 
 
 @dataclass
-class RefineTimings:
-    """Seconds spent per part of refinement (for the fit record and the stage table)."""
+class StageTimings:
+    """Seconds spent per stage of a fit, summed over its passes and restarts (for the fit
+    record and the bench's stage table)."""
 
     seconds: dict[str, float] = field(default_factory=dict)
 
-    def add(self, name: str, seconds: float) -> None:
-        self.seconds[name] = self.seconds.get(name, 0.0) + seconds
+    @contextmanager
+    def measure(self, name: str) -> Iterator[None]:
+        """Add the time the block takes to stage `name`."""
+        started = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - started
 
 
 def _never() -> bool:
@@ -292,7 +300,7 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
                       stop: Callable[[], bool] = _never,
                       on_step: StepCallback | None = None,
                       report_every: int = 10,
-                      timings: RefineTimings | None = None,
+                      timings: StageTimings | None = None,
                       ) -> tuple[list[SweepPrimitive], float, np.ndarray]:
     """Refine primitives (all of `layout`) against the scoring points and prune them; then,
     for up to `settings.residual_rounds` rounds, try to cover the missed parts: while
@@ -308,7 +316,7 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
     (K', N) bool at the scoring points.
     """
     settings = settings or RefineSettings()
-    timings = timings or RefineTimings()
+    timings = timings or StageTimings()
     budget = len(primitives) if budget is None else budget
     rng = np.random.default_rng(seed)
     rounds = settings.residual_rounds
@@ -319,33 +327,33 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
     for k in range(rounds):
         if stop() or not prims:
             break
-        started = time.perf_counter()
-        covered = occupancy.any(axis=0)
-        missed = missed_parts(points, covered, settings.min_missed_cells)
-        free = budget - len(prims)
-        if free > 0:
-            new = residual_primitives(missed, free, layout)
-            kept = list(range(len(prims)))
-        else:
-            # At the budget: swap the primitive that adds least for one on the biggest
-            # missed part, when that part could add more than the primitive does.
-            costs = removal_costs(occupancy, points)
-            victim = int(np.argmin(costs))
-            union = (covered | points.locked | points.labels)[: points.n_cells]
-            gain_bound = (np.count_nonzero(missed) / max(np.count_nonzero(union), 1)
-                          + points.surface_weight * (1.0 - points.surface_coverage(covered)))
-            new = residual_primitives(missed, 1, layout) if gain_bound > costs[victim] else []
-            kept = [i for i in range(len(prims)) if i != victim]
-        timings.add("residual rounds", time.perf_counter() - started)
+        with timings.measure("residual rounds"):
+            covered = occupancy.any(axis=0)
+            missed = missed_parts(points, covered, settings.min_missed_cells)
+            free = budget - len(prims)
+            if free > 0:
+                new = residual_primitives(missed, free, layout)
+                trial = prims + new
+            else:
+                # At the budget: swap the primitive that adds least for one on the
+                # biggest missed part, when that part could add more than it does.
+                costs = removal_costs(occupancy, points)
+                victim = int(np.argmin(costs))
+                union = (covered | points.locked | points.labels)[: points.n_cells]
+                gain_bound = (np.count_nonzero(missed) / max(np.count_nonzero(union), 1)
+                              + points.surface_weight
+                              * (1.0 - points.surface_coverage(covered)))
+                new = (residual_primitives(missed, 1, layout) if gain_bound > costs[victim]
+                       else [])
+                trial = [p for i, p in enumerate(prims) if i != victim] + new
         if not new:
             break  # nothing missed worth a primitive: another pass would refine the same
-        # All primitives move in the round: with the kept ones frozen (only the new ones
-        # optimised, 5x cheaper) the many-limbed shapes lost F1@0.05 (ant 0.955 -> 0.937,
-        # octopus 0.967 -> 0.936), since the body could not make room for a new limb.
+        # All primitives move in the round: with the old ones frozen (5x cheaper) the
+        # many-limbed shapes lost F1@0.05, the body making no room for a new limb.
         trial_prims, trial_occupancy = _refine_pass(
-            [prims[i] for i in kept] + new, layout, points, settings,
-            settings.residual_iterations, rng, stop, on_step, offset, report_every,
-            f"residual round {k + 1} of {rounds}", timings, timing_name="residual rounds")
+            trial, layout, points, settings, settings.residual_iterations, rng, stop, on_step,
+            offset, report_every, f"residual round {k + 1} of {rounds}", timings,
+            timing_name="residual rounds")
         offset += settings.residual_iterations
         if points.score(trial_occupancy.any(axis=0)) <= points.score(covered):
             break  # the next round would try much the same again
@@ -356,12 +364,25 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
 def _refine_pass(prims: list[SweepPrimitive], layout: ParamLayout, points: ScoringPoints,
                  settings: RefineSettings, iterations: int, rng: np.random.Generator,
                  stop: Callable[[], bool], on_step: StepCallback | None, offset: int,
-                 report_every: int, stage: str, timings: RefineTimings,
+                 report_every: int, stage: str, timings: StageTimings,
                  timing_name: str = "refinement") -> tuple[list[SweepPrimitive], np.ndarray]:
     """One pass of Adam on the primitives' parameters, then `prune`: the kept primitives
     of the best state seen and their exact occupancy (K', N) bool. Ends early when
     `settings.patience` exact refreshes in a row do not raise the score, or on stop()."""
-    started = time.perf_counter()
+    with timings.measure(timing_name):
+        best_prims, best_occupancy = _optimise(prims, layout, points, settings, iterations, rng,
+                                               stop, on_step, offset, report_every, stage)
+    with timings.measure("pruning"):
+        keep = prune(best_occupancy, points, settings.min_gain)
+    return [best_prims[i] for i in keep], best_occupancy[keep]
+
+
+def _optimise(prims: list[SweepPrimitive], layout: ParamLayout, points: ScoringPoints,
+              settings: RefineSettings, iterations: int, rng: np.random.Generator,
+              stop: Callable[[], bool], on_step: StepCallback | None, offset: int,
+              report_every: int, stage: str) -> tuple[list[SweepPrimitive], np.ndarray]:
+    """The Adam steps of a pass: the best state by the exact score (the input's at worst)
+    and its exact occupancy (K, N) bool."""
     occupancy = points.occupancy(prims, settings.scoring_t_samples)
     best_score = points.score(occupancy.any(axis=0))
     best_prims: list[SweepPrimitive] = prims
@@ -424,11 +445,7 @@ def _refine_pass(prims: list[SweepPrimitive], layout: ParamLayout, points: Scori
             break
     if best_occupancy is None:
         best_occupancy = points.occupancy(best_prims, settings.scoring_t_samples)
-    timings.add(timing_name, time.perf_counter() - started)
-    started = time.perf_counter()
-    keep = prune(best_occupancy, points, settings.min_gain)
-    timings.add("pruning", time.perf_counter() - started)
-    return [best_prims[i] for i in keep], best_occupancy[keep]
+    return best_prims, best_occupancy
 
 
 def _step_loss(sweeper: AnalyticSweeper, layout: ParamLayout, logits: torch.Tensor,
