@@ -9,6 +9,12 @@ class SweepeditError(Exception):
     """Base of every error that the CLI and the app show to a user as a message."""
 
 
+def primitive_label(index: int) -> str:
+    """How messages and default names call the primitive at 0-based `index`: people
+    count from 1 ("primitive 1" is the first), the same numbering as the app's list."""
+    return f"primitive {index + 1}"
+
+
 class InvalidPrimitiveError(SweepeditError, ValueError):
     """A primitive parameter that is missing, not finite or out of range."""
 
@@ -23,7 +29,7 @@ class InvalidPrimitiveError(SweepeditError, ValueError):
         if path:
             where.append(path)
         if self.primitive is not None:
-            where.append(f"primitive {self.primitive}")
+            where.append(primitive_label(self.primitive))
         if self.field:
             where.append(f"field '{self.field}'")
         return (": ".join([", ".join(where), self.detail])) if where else self.detail

@@ -256,7 +256,7 @@ def test_invalid_parameters_name_the_field(kwargs: dict, field: str) -> None:
     with pytest.raises(InvalidPrimitiveError) as err:
         SweepPrimitive(**base).validate(index=4)
     assert err.value.field == field
-    assert "primitive 4" in str(err.value) and field in str(err.value)
+    assert "primitive 5" in str(err.value) and field in str(err.value)  # index 4, counted from 1
 
 
 def test_axis_that_folds_back_keeps_a_right_handed_frame() -> None:

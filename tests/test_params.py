@@ -33,6 +33,7 @@ from sweepedit.io.params import (
     atomic_open,
     atomic_write_bytes,
     atomic_write_text,
+    default_name,
     read_abstraction,
     read_official_txt,
     write_abstraction,
@@ -64,7 +65,7 @@ def primitive(index: int = 0, n: int = 3, scaling: tuple[float, ...] = (0.1, -0.
               **kw: Any) -> SweepPrimitive:
     t = np.linspace(-0.3, 0.3, n)
     cp = np.stack([t, 0.1 * t**2 + 0.01 * index, 0.05 * index + 0.0 * t], axis=1)
-    kw.setdefault("name", f"primitive {index}")
+    kw.setdefault("name", f"primitive {index + 1}")  # the default name of the index-th
     kw.setdefault("color", palette_color(index))
     return SweepPrimitive(control_points=cp, a=0.05 + 0.01 * index, b=0.04, degree=2.5,
                           scaling=scaling, **kw)
@@ -109,7 +110,7 @@ def sweep_primitives(draw: st.DrawFn, n: tuple[int, int] = (3, 6), k: tuple[int,
     assume(scaling_polynomial_min(scaling) > MIN_SCALE)
     p = SweepPrimitive(control_points=cp, a=draw(st.floats(0.01, 0.5)),
                        b=draw(st.floats(0.01, 0.5)), degree=draw(st.floats(0.3, 5.0)),
-                       scaling=scaling, name=f"primitive {index}", color=palette_color(index))
+                       scaling=scaling, name=default_name(index), color=palette_color(index))
     if not plain:
         p.name = draw(st.text(max_size=12))
         p.color = draw(st.integers(0, 0xFFFFFF).map(lambda v: f"#{v:06x}")
@@ -225,7 +226,7 @@ def test_json_defaults_for_optional_keys(tmp_path: Path) -> None:
     a = read_abstraction(tmp_path / "min.json")
     p = a.primitives[1]
     assert (p.name, p.color, p.visible, p.locked, p.scaling) == (
-        "primitive 1", palette_color(1), True, False, ())
+        "primitive 2", palette_color(1), True, False, ())
     assert np.array_equal(a.normalization.center, np.zeros(3)) and a.normalization.scale == 1
     assert a.source is None and a.fit is None and a.extras == {} and p.extras == {}
 
@@ -268,9 +269,9 @@ def test_official_txt_pads_low_degree_and_refuses_what_it_cannot_hold(tmp_path: 
     assert raw[:, 12:].tolist() == [[0.0, 0.3], [0.0, 0.0], [0.1, 0.1]]
 
     path.write_text("old")
-    cases = [([primitive(0), primitive(1, scaling=(0.1, 0.1, 0.1))], ["primitive 1", "scaling",
+    cases = [([primitive(0), primitive(1, scaling=(0.1, 0.1, 0.1))], ["primitive 2", "scaling",
                                                                       "degree"]),
-             ([primitive(0), primitive(1, n=4)], ["primitive 1", "control points"]),
+             ([primitive(0), primitive(1, n=4)], ["primitive 2", "control points"]),
              ([], ["without primitives"])]
     for prims, words in cases:
         with pytest.raises(FileFormatError) as err:
@@ -295,7 +296,7 @@ def test_official_txt_skips_blank_lines_and_comments(tmp_path: Path) -> None:
                     "0", "0"])
     (tmp_path / "c.txt").write_text(f"# made by hand\n\n{row}\r\n{row}  # second\n")
     a = read_abstraction(tmp_path / "c.txt")
-    assert len(a) == 2 and a.primitives[1].name == "primitive 1"
+    assert len(a) == 2 and a.primitives[1].name == "primitive 2"
 
 
 @pytest.mark.skipif(not OFFICIAL, reason="../shared/sweepnet_params is absent")
@@ -337,19 +338,19 @@ OFFICIAL_ROW = " ".join(["0.0", "0.0", "0.0", "0.1", "0.1", "0.0", "0.2", "0.0",
 BAD_CASES: dict[str, tuple[str, Any, list[str]]] = {
     # name: (extension, text maker, words the message must contain besides the file name)
     "a_out_of_range": ("json", _set(lambda d: _prim1(d)["profile"].update(a=0.9)),
-                       ["primitive 1", "profile.a", "outside"]),
+                       ["primitive 2", "profile.a", "outside"]),
     "degree_out_of_range": ("json", _set(lambda d: _prim1(d)["profile"].update(degree=7)),
-                            ["primitive 1", "profile.degree"]),
+                            ["primitive 2", "profile.degree"]),
     "nan_control_point": ("json", _set(lambda d: _prim1(d)["control_points"][1].__setitem__(
-        0, float("nan"))), ["primitive 1", "control_points", "finite"]),
+        0, float("nan"))), ["primitive 2", "control_points", "finite"]),
     "two_control_points": ("json", _set(lambda d: _prim1(d)["control_points"].pop()),
-                           ["primitive 1", "control_points", "at least 3"]),
+                           ["primitive 2", "control_points", "at least 3"]),
     "coincident_points": ("json", _set(lambda d: _prim1(d).update(
-        control_points=[[0.1, 0.1, 0.1]] * 3)), ["primitive 1", "control_points", "zero length"]),
+        control_points=[[0.1, 0.1, 0.1]] * 3)), ["primitive 2", "control_points", "zero length"]),
     "scaling_reaches_zero": ("json", _set(lambda d: _prim1(d).update(scaling=[-0.5, -0.5])),
-                             ["primitive 1", "scaling"]),
+                             ["primitive 2", "scaling"]),
     "scaling_out_of_range": ("json", _set(lambda d: _prim1(d).update(scaling=[0.1, 0.7])),
-                             ["primitive 1", "scaling[1]"]),
+                             ["primitive 2", "scaling[1]"]),
     "truncated": ("json", lambda: json.dumps(valid_doc(), indent=2)[:300],
                   ["ends unexpectedly", "truncated file", "line"]),
     "malformed": ("json", lambda: '{"format": "sweepedit.abstraction",\n "version": 1,,}',
@@ -357,25 +358,25 @@ BAD_CASES: dict[str, tuple[str, Any, list[str]]] = {
     "empty_json": ("json", lambda: "", ["empty"]),
     "not_an_object": ("json", lambda: "[1, 2]", ["object"]),
     "missing_profile": ("json", _set(lambda d: _prim1(d).pop("profile")),
-                        ["primitive 1", "profile", "missing"]),
+                        ["primitive 2", "profile", "missing"]),
     "missing_degree": ("json", _set(lambda d: _prim1(d)["profile"].pop("degree")),
-                       ["primitive 1", "profile.degree", "missing"]),
+                       ["primitive 2", "profile.degree", "missing"]),
     "missing_control_points": ("json", _set(lambda d: _prim1(d).pop("control_points")),
-                               ["primitive 1", "control_points", "missing"]),
+                               ["primitive 2", "control_points", "missing"]),
     "missing_primitives": ("json", _set(lambda d: d.pop("primitives")),
                            ["primitives", "missing"]),
     "string_for_number": ("json", _set(lambda d: _prim1(d)["profile"].update(b="0.04")),
-                          ["primitive 1", "profile.b", "number", "string"]),
+                          ["primitive 2", "profile.b", "number", "string"]),
     "bool_for_number": ("json", _set(lambda d: _prim1(d).update(scaling=[True])),
-                        ["primitive 1", "scaling[0]", "number"]),
+                        ["primitive 2", "scaling[0]", "number"]),
     "point_of_two": ("json", _set(lambda d: _prim1(d)["control_points"].__setitem__(2, [0, 1])),
-                     ["primitive 1", "control_points[2]", "3 numbers"]),
+                     ["primitive 2", "control_points[2]", "3 numbers"]),
     "string_for_bool": ("json", _set(lambda d: _prim1(d).update(visible="yes")),
-                        ["primitive 1", "visible"]),
+                        ["primitive 2", "visible"]),
     "bad_colour": ("json", _set(lambda d: _prim1(d).update(color="red")),
-                   ["primitive 1", "color", "#rrggbb"]),
+                   ["primitive 2", "color", "#rrggbb"]),
     "number_for_name": ("json", _set(lambda d: _prim1(d).update(name=3)),
-                        ["primitive 1", "name", "string"]),
+                        ["primitive 2", "name", "string"]),
     "bad_normalization": ("json", _set(lambda d: d["normalization"].update(scale=0)),
                           ["normalization"]),
     "version_2": ("json", _set(lambda d: d.update(version=2)),
@@ -391,19 +392,19 @@ BAD_CASES: dict[str, tuple[str, Any, list[str]]] = {
     "txt_blank_only": ("txt", lambda: "\n  \n# nothing\n", ["empty"]),
     "txt_not_a_number": ("txt", lambda: OFFICIAL_ROW + "\n" + OFFICIAL_ROW.replace("0.05", "x",
                                                                                    1),
-                         ["line 2", "column 10", "primitive 1", "profile.a", "'x'",
+                         ["line 2", "column 10", "primitive 2", "profile.a", "'x'",
                           "not a number"]),
     "txt_nan": ("txt", lambda: OFFICIAL_ROW.replace("2.0", "nan"), ["line 1", "column 12",
-                                                                     "primitive 0",
+                                                                     "primitive 1",
                                                                      "profile.degree",
                                                                      "finite"]),
     "txt_inf_s_lin": ("txt", lambda: OFFICIAL_ROW + "\n" + OFFICIAL_ROW.rsplit(" ", 1)[0]
-                      + " inf", ["line 2", "column 14", "primitive 1", "scaling[0]",
+                      + " inf", ["line 2", "column 14", "primitive 2", "scaling[0]",
                                  "finite"]),
     "txt_nan_control_point": ("txt", lambda: OFFICIAL_ROW.replace("0.2", "nan", 1),
-                              ["line 1", "column 7", "primitive 0", "control_points[2]"]),
+                              ["line 1", "column 7", "primitive 1", "control_points[2]"]),
     "txt_out_of_range": ("txt", lambda: OFFICIAL_ROW + "\n" + OFFICIAL_ROW.replace("2.0", "9.0"),
-                         ["line 2", "primitive 1", "profile.degree"]),
+                         ["line 2", "primitive 2", "profile.degree"]),
     "txt_binary": ("txt", lambda: "\udcff", ["UTF-8"]),
 }
 
@@ -418,7 +419,7 @@ def test_bad_input_raises_file_format_error(tmp_path: Path, case: str) -> None:
     message = str(err.value)
     for word in [path.name, *words]:
         assert word in message, f"{word!r} not in {message!r}"
-    if "primitive 1" in words:
+    if "primitive 2" in words:  # people count from 1; the attribute is the index
         assert err.value.primitive == 1
 
 
@@ -433,7 +434,7 @@ def test_valid_doc_itself_loads(tmp_path: Path) -> None:
 def test_abstraction_from_json_names_the_given_path() -> None:
     doc = valid_doc()
     doc["primitives"][0]["profile"]["a"] = -1.0
-    with pytest.raises(FileFormatError, match=r"^memo\.json: primitive 0, field 'profile\.a'"):
+    with pytest.raises(FileFormatError, match=r"^memo\.json: primitive 1, field 'profile\.a'"):
         abstraction_from_json(doc, "memo.json")
 
 

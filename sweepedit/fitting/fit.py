@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from sweepedit.errors import SweepeditError
+from sweepedit.errors import SweepeditError, primitive_label
 from sweepedit.fitting.losses import (
     LossWeights,
     axis_chamfer_loss,
@@ -462,7 +462,8 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     def make_abstraction(prims: list[SweepPrimitive]) -> Abstraction:
         named = []
         for i, p in enumerate(prims):
-            p.name = p.name or f"primitive {len(locked) + i + 1}"
+            # Renumbered in order: residual rounds bring their own "primitive 1.." names.
+            p.name = primitive_label(len(locked) + i)
             p.color = palette_color(len(locked) + i)
             named.append(p)
         return Abstraction([q.copy() for q in locked] + named,

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from sweepedit.errors import primitive_label
 from sweepedit.geometry.model import (
     A_RANGE,
     B_RANGE,
@@ -165,7 +166,7 @@ class ParamLayout:
         for i, p in enumerate(primitives):
             if p.n_control_points != self.n_control_points or len(p.scaling) != self.n_scaling:
                 raise ValueError(
-                    f"primitive {i} has {p.n_control_points} control points and "
+                    f"{primitive_label(i)} has {p.n_control_points} control points and "
                     f"{len(p.scaling)} scaling terms; the layout expects "
                     f"{self.n_control_points} and {self.n_scaling}")
             rows.append(np.concatenate([p.control_points.reshape(-1), p.profile,

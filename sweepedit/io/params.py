@@ -39,7 +39,7 @@ from typing import IO, Any, Literal
 
 import numpy as np
 
-from sweepedit.errors import FileFormatError, InvalidPrimitiveError
+from sweepedit.errors import FileFormatError, InvalidPrimitiveError, primitive_label
 from sweepedit.geometry.model import (
     MIN_CONTROL_POINTS,
     Abstraction,
@@ -79,8 +79,9 @@ _OFFICIAL_FMT = "%.18e"  # numpy's savetxt default; 19 significant digits round-
 
 
 def default_name(index: int) -> str:
-    """Name given to the index-th primitive when a file has none (same index as in errors)."""
-    return f"primitive {index}"
+    """Name given to the index-th (0-based) primitive when a file has none: the same
+    1-based label as in error messages."""
+    return primitive_label(index)
 
 
 # --------------------------------------------------------------------------- atomic writes
@@ -578,7 +579,7 @@ def _parse_row(path: PathLike, lineno: int, tokens: list[str], index: int) -> np
             problem = "is not a number"
         if problem:
             field = _official_field(column - 1, len(tokens))
-            where = f", primitive {index}, field '{field}'" if field else ""
+            where = f", {primitive_label(index)}, field '{field}'" if field else ""
             raise FileFormatError(path, f"line {lineno}, column {column}{where}: {token!r} "
                                   f"{problem}", primitive=index if field else None,
                                   field=field)
@@ -606,15 +607,17 @@ def write_official_txt(abstraction: Abstraction, path: PathLike) -> None:
         if p.n_control_points != n:
             raise FileFormatError(
                 path, f"the official format needs the same number of control points in every "
-                f"row: primitive 0 has {n}, primitive {index} has {p.n_control_points}",
+                f"row: {primitive_label(0)} has {n}, {primitive_label(index)} has "
+                f"{p.n_control_points}",
                 primitive=index, field="control_points")
         scaling = list(p.scaling)
         while len(scaling) > _OFFICIAL_SCALING_COLUMNS and scaling[-1] == 0.0:
             scaling.pop()  # a zero top coefficient loses nothing
         if len(scaling) > _OFFICIAL_SCALING_COLUMNS:
             raise FileFormatError(
-                path, f"primitive {index}, field 'scaling': the official format holds a scaling "
-                f"polynomial of degree <= 2 (s_lin, s_quad), this one has degree {len(scaling)}; "
+                path, f"{primitive_label(index)}, field 'scaling': the official format holds a "
+                f"scaling polynomial of degree <= 2 (s_lin, s_quad), this one has degree "
+                f"{len(scaling)}; "
                 "save as .json instead", primitive=index, field="scaling")
         s1, s2 = [*scaling, 0.0, 0.0][:2]
         rows.append(np.concatenate([p.control_points.reshape(-1), [p.a, p.b, p.degree, s2, s1]]))
