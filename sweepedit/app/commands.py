@@ -367,7 +367,7 @@ def new_primitive(doc: Document) -> SweepPrimitive:
     n = len(doc)
     return SweepPrimitive(
         control_points=np.array([[0.0, 0.0, -0.2], [0.0, 0.0, 0.0], [0.0, 0.0, 0.2]]),
-        a=0.08, b=0.08, degree=2.0, scaling=(0.0, 0.0), name=f"primitive {n + 1}",
+        a=0.08, b=0.08, degree=2.0, scaling=(0.0, 0.0), name=doc.next_primitive_name(),
         color=palette_color(n))
 
 

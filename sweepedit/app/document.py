@@ -9,12 +9,14 @@ undone.
 from __future__ import annotations
 
 import copy
+import re
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sweepedit.errors import primitive_label
 from sweepedit.geometry.model import Abstraction, SweepPrimitive, palette_color
 
 # What changed in a primitive (the second argument of Document.primitive_changed).
@@ -59,15 +61,50 @@ def field_kind(name: str) -> str:
     raise KeyError(f"'{name}' is not an editable primitive field")
 
 
+# "primitive 12", "bar copy 3": a name and the number it ends with.
+_NUMBERED = re.compile(r"^(?P<base>.*?)\s*(?P<number>\d+)$")
+
+
+def unique_name(name: str, taken: Iterable[str]) -> str:
+    """`name` itself when no name in `taken` equals it; otherwise its base with the next
+    number above every one in use with that base ("primitive 3" among "primitive 1..5"
+    gives "primitive 6", "bar copy" gives "bar copy 2")."""
+    taken = set(taken)
+    if name not in taken:
+        return name
+    match = _NUMBERED.match(name)
+    base = match.group("base") if match else name
+    highest = 1
+    for other in taken:
+        m = _NUMBERED.match(other)
+        if m and m.group("base") == base:
+            highest = max(highest, int(m.group("number")))
+        elif other == base:
+            highest = max(highest, 1)
+    return f"{base} {highest + 1}".strip()
+
+
+def ensure_unique_names(primitives: Sequence[SweepPrimitive]) -> None:
+    """Name unnamed primitives "primitive i" (from 1, in order) and rename later ones whose
+    name an earlier one already has (fit results with residual rounds, files edited by
+    hand): the first keeps its name."""
+    seen: set[str] = set()
+    for i, p in enumerate(primitives):
+        name = p.name or primitive_label(i)
+        if name in seen:
+            name = unique_name(name, seen | {q.name for q in primitives[i + 1:]})
+        p.name = name
+        seen.add(name)
+
+
 def ensure_distinct_colors(primitives: Sequence[SweepPrimitive]) -> None:
     """Give primitives palette colours when they all share one (files without colours,
-    fit results); a deliberate choice of the user (distinct colours) is left alone."""
+    fit results); a deliberate choice of the user (distinct colours) is left alone.
+    Names are made unique too (ensure_unique_names)."""
     if len(primitives) > 1 and len({p.color.lower() for p in primitives}) == 1:
         for i, p in enumerate(primitives):
             p.color = palette_color(i)
-    for i, p in enumerate(primitives):
-        if not p.name:
-            p.name = f"primitive {i + 1}"
+    ensure_unique_names(primitives)
 
 
 class Document:
@@ -118,6 +155,17 @@ class Document:
         if self.selection is None:
             return None
         return self.abstraction.primitives[self.selection]
+
+    def names(self, skip: int | None = None) -> set[str]:
+        """The primitives' names, without the one at index `skip`."""
+        return {p.name for i, p in enumerate(self.primitives) if i != skip}
+
+    def next_primitive_name(self) -> str:
+        """"primitive N" for a new primitive, N one above the highest number in use (so
+        after a .txt's "primitive 1..5", Add makes "primitive 6", also after a delete)."""
+        numbers = [int(m.group("number")) for name in self.names()
+                   if (m := _NUMBERED.match(name)) and m.group("base") == "primitive"]
+        return f"primitive {max(numbers, default=0) + 1}"
 
     def display_name(self) -> str:
         """A title for the window: the parameter file, else the shape, else 'untitled'."""
@@ -203,6 +251,8 @@ class Document:
                 value = float(value)
             elif name in ("visible", "locked"):
                 value = bool(value)
+            elif name == "name":
+                value = unique_name(str(value), self.names(skip=index))
             setattr(prim, name, value)
         # One notification per kind, the most demanding first (a re-sweep redraws all).
         for kind in (GEOMETRY, DISPLAY, META):
@@ -211,6 +261,9 @@ class Document:
         self.edited.emit()
 
     def insert_primitive(self, index: int, primitive: SweepPrimitive) -> None:
+        """Insert `primitive` (renamed if its name is taken: names stay unique)."""
+        primitive.name = unique_name(primitive.name or self.next_primitive_name(),
+                                     self.names())
         self.abstraction.primitives.insert(index, primitive)
         if self.selection is not None and self.selection >= index:
             self.selection += 1
@@ -233,8 +286,9 @@ class Document:
 
     def replace_primitives(self, primitives: Iterable[SweepPrimitive],
                            fit: dict[str, Any] | None = None) -> None:
-        """Replace all primitives (and the fit record) at once."""
+        """Replace all primitives (and the fit record) at once; names are made unique."""
         self.abstraction.primitives = list(primitives)
+        ensure_unique_names(self.abstraction.primitives)
         self.abstraction.fit = fit
         old = self.selection
         if self.selection is not None and self.selection >= len(self):
