@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from sweepedit.errors import SweepeditError
+from sweepedit.io.benchmark_set import BENCHMARK_DIR
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -27,8 +28,8 @@ _STARTED = time.perf_counter()
 # are then taken on fewer surface samples (the protocol's 100,000 take about a second).
 _WRITE_RESERVE_S = 0.6
 _QUICK_METRIC_SAMPLES = 20_000
-# The benchmark set sits beside the checkout (DESIGN.md section 6).
-DEFAULT_SHAPES = Path(__file__).resolve().parents[2] / "shared" / "shapes"
+# The benchmark set that ships inside the package (sweepedit/resources/benchmark).
+DEFAULT_SHAPES = BENCHMARK_DIR
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
@@ -405,7 +406,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="fit every shape of a folder and tabulate the metrics")
     p.add_argument("--shapes", default=str(DEFAULT_SHAPES),
-                   help="folder of shapes (../shared/shapes)")
+                   help="folder of shapes (the 19 bundled with sweepedit; their licences in "
+                        "its manifest.json)")
     p.add_argument("--out", default="bench-out/bench.md",
                    help="table to write (Markdown); .json and a contact sheet .png beside it")
     _add_fit_options(p, iterations=300)
