@@ -50,3 +50,8 @@ class FileFormatError(SweepeditError, ValueError):
         self.field = field
         self.detail = message
         super().__init__(f"{self.path}: {message}")
+
+
+class DegenerateShapeError(FileFormatError):
+    """A shape file that reads but gives a fit nothing to do: flat, a line, a few points,
+    an open sheet or specks that enclose (almost) no volume on the fitting grid."""
