@@ -277,25 +277,83 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_bench(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from sweepedit.fitting.bench import format_table, run_bench
+def _batch_options(args: argparse.Namespace, outdir: Path, *, resume: bool,
+                   cpus_per_task: int):
+    from sweepedit.batch import BatchOptions, JobSpec
 
     settings = _fit_settings(args)
-    bar = tqdm(unit="shape", desc="bench", dynamic_ncols=True)
+    settings.validate()
+    spec = JobSpec(settings, mesh_format=args.mesh_format, samples=args.samples,
+                   threads=cpus_per_task, gpus=args.gpus_per_task)
+    return BatchOptions(outdir, spec, engine=args.engine, workers=args.workers,
+                        address=args.address, max_retries=args.max_retries,
+                        kill_after=args.kill_after, resume=resume,
+                        progress=not getattr(args, "quiet", False))
 
-    def progress(done: int, total: int, name: str) -> None:
-        bar.total = total
-        bar.n = done
-        bar.set_postfix_str(name)
-        bar.refresh()
 
-    rows = run_bench(args.shapes, args.out, settings, progress=progress)
-    bar.close()
-    print(format_table(rows, settings))
-    print(f"table -> {args.out}, contact sheet -> {Path(args.out).with_suffix('.png')}")
-    return 0
+def _print_failed(report) -> None:
+    for o in report.failed:
+        print(f"failed: {o.name}: {o.error}", file=sys.stderr)
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from sweepedit.batch import expand_inputs, run_batch
+    from sweepedit.batch.report import SHEET_NAME, bench_rows, draw_sheet, write_table
+    from sweepedit.fitting.bench import format_means
+
+    outdir = Path(args.output)
+    options = _batch_options(args, outdir, resume=not args.no_resume,
+                             cpus_per_task=args.cpus_per_task)
+    shapes = expand_inputs(args.inputs, exclude=outdir)
+    report = run_batch(shapes, options)
+    print(f"{len(report.outcomes)} shapes: {report.fitted} fitted ({report.engine}), "
+          f"{report.skipped} already done, {len(report.failed)} failed, "
+          f"{report.seconds:.1f} s")
+    print(format_means(bench_rows(report.outcomes)), end="")
+    print(f"summary -> {outdir / 'summary.csv'}, table -> "
+          f"{write_table(outdir, report.outcomes, options.spec.settings)}")
+    if not args.no_sheet:
+        sheet = draw_sheet(outdir, report.outcomes, outdir / SHEET_NAME, args.sheet_max)
+        if sheet:
+            print(f"contact sheet ({sheet[1]} shapes) -> {sheet[0]}")
+    _print_failed(report)
+    return 1 if report.failed else 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    """`batch` over a benchmark folder, then the full table: one code path."""
+    from sweepedit.batch import expand_inputs, run_batch
+    from sweepedit.batch.report import bench_rows, draw_sheet
+    from sweepedit.fitting.bench import format_table, write_bench_json
+    from sweepedit.io.params import atomic_write_text
+
+    out = Path(args.out)
+    outdir = out.parent / "params"
+    # With no engine option, one shape at a time on every core, as bench measured before
+    # batch: its seconds stay a single fit's.
+    alone = args.workers is None and args.address is None and args.cpus_per_task is None
+    cpus = _cores() if alone else (args.cpus_per_task or 1)
+    options = _batch_options(args, outdir, resume=args.resume, cpus_per_task=cpus)
+    if alone:
+        options.workers = 1
+    report = run_batch(expand_inputs([args.shapes], exclude=outdir), options)
+    rows = bench_rows(report.outcomes)
+    settings = options.spec.settings
+    table = format_table(rows, settings)
+    atomic_write_text(out, table)
+    write_bench_json(out.with_suffix(".json"), rows, settings)
+    print(table)
+    sheet = draw_sheet(outdir, report.outcomes, out.with_suffix(".png"), None)
+    print(f"table -> {out}, parameters and meshes -> {outdir}/"
+          + (f", contact sheet -> {sheet[0]}" if sheet else ""))
+    _print_failed(report)
+    return 1 if report.failed else 0
+
+
+def _cores() -> int:
+    from sweepedit.batch.engine import machine_cores
+
+    return machine_cores()
 
 
 def _cmd_train_sweeper(args: argparse.Namespace) -> int:
@@ -314,7 +372,7 @@ def _cmd_gui(args: argparse.Namespace) -> int:
         raise SweepeditError("--select goes with --screenshot")
     if args.screenshot:
         return screenshot(args.file, args.screenshot, select=args.select)
-    return run_app(args.file)
+    return run_app(args.file, recover=args.recover)
 
 
 def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
@@ -346,6 +404,28 @@ def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
                         "spends primitives on thin parts (1.0)")
     p.add_argument("--control-points", type=int, default=3, help="per axis (3)")
     p.add_argument("--scaling-degree", type=int, default=2, help="of f(t) (2)")
+
+
+def _add_batch_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mesh-format", choices=("glb", "obj", "ply", "stl"), default="glb",
+                   help="format of each shape's union mesh (glb)")
+    p.add_argument("--samples", type=_int_at_least(1), default=100_000,
+                   help="surface samples per side for the metrics, as `eval` (100000)")
+    p.add_argument("--engine", choices=("auto", "ray", "inprocess"), default="auto",
+                   help="ray, or one shape at a time in this process (inprocess); auto is "
+                        "ray when installed (auto)")
+    p.add_argument("--workers", type=_int_at_least(1), default=None,
+                   help="shapes fitted at once (this machine's cores / --cpus-per-task; on "
+                        "a cluster, as many as its CPUs hold)")
+    p.add_argument("--address", metavar="auto|ray://HOST:PORT", default=None,
+                   help="run on an existing Ray cluster instead of a local instance")
+    p.add_argument("--gpus-per-task", type=float, default=0.0,
+                   help="GPUs per shape, where the cluster has them (0)")
+    p.add_argument("--max-retries", type=_int_at_least(0), default=2,
+                   help="retries of a shape whose worker or node died (2)")
+    p.add_argument("--kill-after", type=float, default=None, metavar="SECONDS",
+                   help="kill a shape's task after this long (twice --time-limit plus 60 s; "
+                        "none without a time limit)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -404,13 +484,39 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_fit)
 
-    p = sub.add_parser("bench", help="fit every shape of a folder and tabulate the metrics")
-    p.add_argument("--shapes", default=str(DEFAULT_SHAPES),
-                   help="folder of shapes (the 19 bundled with sweepedit; their licences in "
-                        "its manifest.json)")
-    p.add_argument("--out", default="bench-out/bench.md",
-                   help="table to write (Markdown); .json and a contact sheet .png beside it")
+    p = sub.add_parser("batch", help="fit many shapes (files, folders, globs, lists) on Ray, "
+                                     "resumable; summary.csv, table and contact sheet")
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="shape files, folders (recursive), quoted globs, or a .txt/.csv list")
+    p.add_argument("-o", "--output", required=True, metavar="OUTDIR",
+                   help="folder for <name>.json, the meshes and summary.csv; a rerun with "
+                        "the same folder fits only the shapes not done yet")
     _add_fit_options(p, iterations=300)
+    _add_batch_options(p)
+    p.add_argument("--cpus-per-task", type=_int_at_least(1), default=1,
+                   help="CPUs (and torch threads) per shape (1)")
+    p.add_argument("--no-resume", action="store_true",
+                   help="refit every shape, also those already done in OUTDIR")
+    p.add_argument("--no-sheet", action="store_true", help="no contact sheet at the end")
+    p.add_argument("--sheet-max", type=_int_at_least(1), default=64,
+                   help="shapes on the contact sheet at most, spread over the job (64)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_batch)
+
+    p = sub.add_parser("bench", help="fit every shape of a folder and tabulate the metrics "
+                                     "(batch plus the full table)")
+    p.add_argument("--shapes", default=str(DEFAULT_SHAPES),
+                   help="folder of shapes (../shared/shapes)")
+    p.add_argument("--out", default="bench-out/bench.md",
+                   help="table to write (Markdown); .json and a contact sheet .png beside "
+                        "it, parameters and meshes in its folder's params/")
+    _add_fit_options(p, iterations=300)
+    _add_batch_options(p)
+    p.add_argument("--cpus-per-task", type=_int_at_least(1), default=None,
+                   help="CPUs (and torch threads) per shape (all cores, one shape at a "
+                        "time; 1 with --workers)")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the shapes already done under the table's params/ folder")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("train-sweeper", help="train the neural sweeper on random sweeps")
@@ -427,6 +533,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--screenshot", metavar="PNG", help="write a screenshot and quit")
     p.add_argument("--select", type=int, metavar="N",
                    help="with --screenshot: show primitive N (from 0) selected, axis and handles")
+    p.add_argument("--recover", choices=("ask", "yes", "no"), default="ask",
+                   help="unsaved edits left by an editor that was killed or crashed: ask "
+                   "(default), or recover (yes) or keep (no) them without asking")
     p.set_defaults(func=_cmd_gui)
 
     return parser

@@ -293,6 +293,13 @@ class CommandStack:
         self._merge_open = False
         self._changed()
 
+    def mark_modified(self) -> None:
+        """The document changed outside the history (a new target shape kept with its
+        primitives, recovered edits): unsaved until the next save, whatever is undone."""
+        self._clean = None
+        self._merge_open = False
+        self._changed()
+
     def set_clean(self) -> None:
         """Mark the current state as saved."""
         self._clean = len(self._undo)

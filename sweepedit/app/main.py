@@ -51,9 +51,16 @@ def _wait(app: QApplication, seconds: float, until: Callable[[], bool] | None = 
         time.sleep(0.01)
 
 
-def run_app(path: str | None = None) -> int:
+RECOVER_ANSWERS = {"ask": None, "yes": True, "no": False}
+
+
+def run_app(path: str | None = None, recover: str = "ask") -> int:
     """Open the editor on `path` (a shape or a parameter file), or on the bundled example
-    when no path is given; returns the application's exit code."""
+    when no path is given; returns the application's exit code. Unsaved edits that an
+    editor killed or crashed left behind are offered first (`recover`: "ask", or "yes" /
+    "no" to answer without asking); when they are recovered, `path` is not opened."""
+    if recover not in RECOVER_ANSWERS:
+        raise ValueError(f"recover must be one of {sorted(RECOVER_ANSWERS)}, got {recover!r}")
     if not has_display():
         print("sweepedit: no display to open the editor on (DISPLAY is not set); "
               "use `xvfb-run sweepedit ...` on a headless machine", file=sys.stderr)
@@ -65,14 +72,20 @@ def run_app(path: str | None = None) -> int:
     app.aboutToQuit.connect(window.metrics.shutdown)
     window.show()
     target = Path(path) if path else example_path()
-    if target is not None:
-        # After the event loop starts, so that an error dialog has a window to sit on.
-        from PySide6.QtCore import QTimer
 
-        QTimer.singleShot(0, lambda: window.open_path(target))
-    else:
-        window.show_status("No file given and no bundled example found: "
-                           "open a shape with Ctrl+O.")
+    def start() -> None:
+        if window.offer_recovery(RECOVER_ANSWERS[recover]):
+            return
+        if target is not None:
+            window.open_path(target)
+        else:
+            window.show_status("No file given and no bundled example found: "
+                               "open a shape with Ctrl+O.")
+
+    # After the event loop starts, so that a dialog has a window to sit on.
+    from PySide6.QtCore import QTimer
+
+    QTimer.singleShot(0, start)
     return int(app.exec())
 
 

@@ -12,8 +12,20 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-from PySide6.QtCore import QPointF, QRectF, QSignalBlocker, Qt, Signal
-from PySide6.QtGui import QAction, QColor, QFont, QIcon, QPainter, QPen, QPixmap, QPolygonF
+from PySide6.QtCore import QEvent, QPointF, QRectF, QSignalBlocker, Qt, Signal
+from PySide6.QtGui import (
+    QAction,
+    QColor,
+    QFont,
+    QIcon,
+    QKeyEvent,
+    QKeySequence,
+    QPainter,
+    QPen,
+    QPixmap,
+    QPolygonF,
+    QWheelEvent,
+)
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QCheckBox,
@@ -48,7 +60,7 @@ from sweepedit.app.commands import (
 )
 from sweepedit.app.document import DISPLAY, GEOMETRY, META, Document
 from sweepedit.app.worker import FitUpdate
-from sweepedit.errors import SweepeditError
+from sweepedit.errors import InvalidPrimitiveError, SweepeditError
 from sweepedit.geometry.model import A_RANGE, B_RANGE, DEGREE_RANGE, SCALING_RANGE
 
 CONTROL_POINT_RANGE = (-1.0, 1.0)  # wider than the fitted [-0.5, 0.5] so users can reach out
@@ -90,6 +102,20 @@ def color_icon(color: str, size: int = 14) -> QIcon:
     return QIcon(pix)
 
 
+def refusal_text(exc: SweepeditError, name: str) -> str:
+    """Why an edit of primitive `name` was refused, in the user's words."""
+    field = getattr(exc, "field", None) or ""
+    detail = getattr(exc, "detail", str(exc))
+    if field == "scaling":
+        return (f"{name}: not changed; with that scaling the primitive would get zero or "
+                "negative thickness somewhere along its axis. Choose a smaller coefficient.")
+    if field.startswith("scaling["):
+        return f"{name}: not changed; scaling coefficients stay within {list(SCALING_RANGE)}."
+    if field == "control_points":
+        return f"{name}: not changed; {detail}."
+    return f"{name}: not changed; {detail}."
+
+
 class _Editor:
     """Shared by panels: push a command, report refusals instead of raising."""
 
@@ -103,7 +129,10 @@ class _Editor:
         try:
             self.stack.push(command)
         except SweepeditError as exc:  # e.g. a scaling that makes f(t) <= 0
-            self.report(str(exc))
+            index = getattr(command, "index", None)
+            name = (self.doc.primitive(index).name if isinstance(index, int)
+                    and 0 <= index < len(self.doc) else "The primitive")
+            self.report(refusal_text(exc, name))
             return False
         return True
 
@@ -239,11 +268,60 @@ class PrimitiveListPanel(QWidget):
 
 # -- properties -----------------------------------------------------------------------------
 
+# Keys the window's undo and redo actions own, also while a property box has the focus.
+_HISTORY_KEYS = (QKeySequence.StandardKey.Undo, QKeySequence.StandardKey.Redo)
+_REDO_EXTRA = QKeySequence("Ctrl+Y")
+
+
+def _is_history_key(event: QKeyEvent) -> bool:
+    if any(event.matches(k) for k in _HISTORY_KEYS):
+        return True
+    return QKeySequence(event.keyCombination()) == _REDO_EXTRA
+
+
+class PropertySpinBox(QDoubleSpinBox):
+    """A spin box of the properties panel. The mouse wheel never edits it (scrolling the
+    panel must not change the geometry: the wheel goes on to the scroll area), and
+    Ctrl+Z / Ctrl+Shift+Z / Ctrl+Y reach the window's undo and redo once the typed value
+    is committed (Enter); only while a number is being typed do they undo the typing."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
+
+    def typing(self) -> bool:
+        """Whether the text shows something not yet committed as the value."""
+        return self.cleanText() != self.textFromValue(self.value()) and bool(self.cleanText())
+
+    def event(self, event: QEvent) -> bool:
+        if (event.type() == QEvent.Type.ShortcutOverride and isinstance(event, QKeyEvent)
+                and _is_history_key(event) and not self.typing()):
+            event.ignore()  # not ours: the window's shortcut takes it
+            return False
+        return super().event(event)
+
+    def wheelEvent(self, event: QWheelEvent) -> None:  # noqa: N802 (Qt API)
+        event.ignore()
+
+
+class PropertySlider(QSlider):
+    """A slider of the properties panel that the mouse wheel never moves."""
+
+    def __init__(self, orientation: Qt.Orientation, parent: QWidget | None = None) -> None:
+        super().__init__(orientation, parent)
+        self.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
+
+    def wheelEvent(self, event: QWheelEvent) -> None:  # noqa: N802 (Qt API)
+        event.ignore()
+
+
 class SliderSpin(QWidget):
     """A labelled slider and spin box over one float range, kept in step.
 
-    value_changed(float) on every change by the user; editing_finished() when the slider
-    is released or the spin box loses focus / gets Enter (ends an undo step)."""
+    value_changed(float) on every change by the user; editing_finished() ends an undo
+    step: around every discrete change (a key, a click on the groove, a value typed in
+    the box), when a drag of the handle starts and when it ends. A drag is one step; a
+    key press is a step of its own and never merges with a later click or drag."""
 
     value_changed = Signal(float)
     editing_finished = Signal()
@@ -253,10 +331,10 @@ class SliderSpin(QWidget):
                  parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.lo, self.hi = float(lo), float(hi)
-        self.slider = QSlider(Qt.Orientation.Horizontal)
+        self.slider = PropertySlider(Qt.Orientation.Horizontal)
         self.slider.setRange(0, self.STEPS)
         self.slider.setMinimumWidth(90)
-        self.spin = QDoubleSpinBox()
+        self.spin = PropertySpinBox()
         self.spin.setRange(self.lo, self.hi)
         self.spin.setDecimals(decimals)
         self.spin.setSingleStep(step)
@@ -266,7 +344,10 @@ class SliderSpin(QWidget):
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.slider, 1)
         layout.addWidget(self.spin)
+        self._discrete = False  # the slider's pending change is a key or a page click
+        self.slider.actionTriggered.connect(self._on_slider_action)
         self.slider.valueChanged.connect(self._from_slider)
+        self.slider.sliderPressed.connect(self.editing_finished)
         self.slider.sliderReleased.connect(self.editing_finished)
         self.spin.valueChanged.connect(self._from_spin)
         self.spin.editingFinished.connect(self.editing_finished)
@@ -277,8 +358,24 @@ class SliderSpin(QWidget):
     def set_value(self, value: float) -> None:
         """Show `value` without emitting value_changed."""
         with QSignalBlocker(self.spin), QSignalBlocker(self.slider):
+            self.spin.setSpecialValueText("")
             self.spin.setValue(value)
             self.slider.setValue(self._to_steps(value))
+
+    def set_blank(self) -> None:
+        """Show no value (nothing selected), not the range's minimum."""
+        with QSignalBlocker(self.spin), QSignalBlocker(self.slider):
+            self.spin.setSpecialValueText(" ")  # shown while the value is the minimum
+            self.spin.setValue(self.spin.minimum())
+            self.slider.setValue(0)
+
+    def is_blank(self) -> bool:
+        return self.spin.text().strip() == ""
+
+    def _on_slider_action(self, action: int) -> None:
+        # Emitted before the value changes: a key or a click on the groove is a step of
+        # its own; a drag (SliderMove) merges until the handle is released.
+        self._discrete = action != QSlider.SliderAction.SliderMove.value
 
     def _to_steps(self, value: float) -> int:
         return round((value - self.lo) / (self.hi - self.lo) * self.STEPS)
@@ -286,17 +383,27 @@ class SliderSpin(QWidget):
     def _from_slider(self, steps: int) -> None:
         value = self.lo + (self.hi - self.lo) * steps / self.STEPS
         with QSignalBlocker(self.spin):
+            self.spin.setSpecialValueText("")
             self.spin.setValue(value)
+        discrete, self._discrete = self._discrete, False
+        if discrete:
+            self.editing_finished.emit()
         self.value_changed.emit(self.value())
+        if discrete:
+            self.editing_finished.emit()
 
     def _from_spin(self, value: float) -> None:
+        # Enter, an arrow key or a step button: one change, one undo step.
         with QSignalBlocker(self.slider):
             self.slider.setValue(self._to_steps(value))
+        self.spin.setSpecialValueText("")
+        self.editing_finished.emit()
         self.value_changed.emit(float(value))
+        self.editing_finished.emit()
 
 
 def _spin(lo: float, hi: float, decimals: int, step: float, suffix: str = "") -> QDoubleSpinBox:
-    s = QDoubleSpinBox()
+    s = PropertySpinBox()
     s.setRange(lo, hi)
     s.setDecimals(decimals)
     s.setSingleStep(step)
@@ -458,6 +565,9 @@ class PropertiesPanel(QWidget):
         if prim is None:
             self.title.setText("No primitive selected")
             self.title.setToolTip("")
+            self._ensure_rows(0, 0)  # no control point or scaling rows
+            for w in self.field_widgets.values():
+                w.set_blank()
             return
         locked = "  (locked)" if prim.locked else ""
         self.title.setText(f"{prim.name or 'primitive'}{locked}")
@@ -528,8 +638,32 @@ class PropertiesPanel(QWidget):
             return
         profile_scale = self.scale_spin.value() if self.scale_profile_check.isChecked() else 1.0
         self.stack.close_merge()
-        if self.editor.push(transform_primitive(self.doc, i, m, profile_scale=profile_scale)):
-            self.reset_transform()
+        command = transform_primitive(self.doc, i, m, profile_scale=profile_scale)
+        try:
+            self.stack.push(command)
+        except SweepeditError as exc:
+            self.editor.report(self._transform_refusal(exc, profile_scale))
+            with QSignalBlocker(self.scale_spin):
+                self.scale_spin.setValue(1.0)  # the refused value does not stay shown
+            return
+        self.reset_transform()
+
+    def _transform_refusal(self, exc: SweepeditError, scale: float) -> str:
+        """A refused transform, in the user's words; for a scale that would take a or b
+        past its limits, the scales that would work."""
+        prim = self.doc.selected
+        name = prim.name if prim is not None else "The primitive"
+        field = getattr(exc, "field", "") or ""
+        if (prim is not None and isinstance(exc, InvalidPrimitiveError)
+                and field in ("profile.a", "profile.b")):
+            lo = max(A_RANGE[0] / prim.a, B_RANGE[0] / prim.b)
+            hi = min(A_RANGE[1] / prim.a, B_RANGE[1] / prim.b)
+            which = "wider" if scale > 1.0 else "thinner"
+            limit = A_RANGE[1] if scale > 1.0 else A_RANGE[0]
+            return (f"{name} was not scaled: {scale:g}× would make its profile {which} "
+                    f"than the limit ({limit:g}). Scale by {lo:.3g}× to {hi:.3g}×, or untick "
+                    "'Scale the profile (a, b) too' to scale only its axis.")
+        return refusal_text(exc, name)
 
     def reset_transform(self) -> None:
         for s in (*self.translate_spins, *self.rotate_spins):

@@ -8,6 +8,7 @@ tests replace these two methods so that no modal dialog ever blocks them.
 from __future__ import annotations
 
 import copy
+import errno
 import time
 from pathlib import Path
 from typing import Any
@@ -35,10 +36,12 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from sweepedit.app.autosave import Autosaver, Recovery
 from sweepedit.app.commands import (
     AddPrimitive,
     CommandStack,
     DeletePrimitive,
+    ReplacePrimitives,
     apply_fit,
     duplicate_primitive,
     new_primitive,
@@ -56,6 +59,7 @@ from sweepedit.app.worker import (
     with_locked,
 )
 from sweepedit.errors import SweepeditError
+from sweepedit.geometry.model import Abstraction
 
 APP_NAME = "SweepEdit"
 PARAM_EXTENSIONS = (".json", ".txt")
@@ -74,7 +78,8 @@ Left-drag: rotate · Shift+left-drag or middle-drag: pan · wheel / right-drag: 
 Click a primitive to select it; drag its white handles to move its axis control points
 (in the view plane).<br><br>
 <b>Keys</b><br>
-Ctrl+O open shape · Ctrl+Shift+O open parameters · Ctrl+S save · Ctrl+Shift+S save as<br>
+Ctrl+N new · Ctrl+W close · Ctrl+O open shape · Ctrl+Shift+O open parameters ·
+Ctrl+S save · Ctrl+Shift+S save as<br>
 Ctrl+Z undo · Ctrl+Shift+Z / Ctrl+Y redo · Ctrl+Shift+N add · Ctrl+D duplicate ·
 Delete delete<br>
 F fit view · T show/hide the target shape · Enter in the transform section applies it"""
@@ -109,10 +114,12 @@ def is_parameter_file(path: str | Path) -> bool:
 
 class MainWindow(QMainWindow):
     """SweepEdit's main window. `settings` defaults to the user's QSettings (recent files);
-    `preload_fit`: import the fitting code in the background once the window is shown."""
+    `preload_fit`: import the fitting code in the background once the window is shown;
+    `recovery_dir`: where the autosave writes its recovery file (default: the user's
+    application data folder, sweepedit.app.autosave)."""
 
     def __init__(self, settings: QSettings | None = None, parent: QWidget | None = None,
-                 preload_fit: bool = True) -> None:
+                 preload_fit: bool = True, recovery_dir: Path | None = None) -> None:
         super().__init__(parent)
         self.preload_fit = preload_fit
         from pyvistaqt import QtInteractor  # heavy import, only when a window is made
@@ -120,6 +127,7 @@ class MainWindow(QMainWindow):
         self.settings = settings if settings is not None else QSettings("sweepedit", "sweepedit")
         self.doc = Document()
         self.stack = CommandStack(self.doc)
+        self.autosave = Autosaver(self.doc, recovery_dir, parent=self)
         # One headlight instead of pyvista's five-light kit: lighting is per fragment and
         # software GL (no GPU) pays for every light on every pixel.
         self.plotter = QtInteractor(self, auto_update=False, multi_samples=MULTI_SAMPLES,
@@ -182,6 +190,10 @@ class MainWindow(QMainWindow):
 
     def _make_actions(self) -> None:
         A = self._action
+        self.act_new = A("&New", self.new_document, QKeySequence.StandardKey.New,
+                         "Start anew: no shape, no primitives (asks to save changes first)")
+        self.act_close = A("&Close", self.close_document, QKeySequence.StandardKey.Close,
+                           "Close the shape and the primitives (asks to save changes first)")
         self.act_open_shape = A("Open &shape…", self.open_shape_dialog,
                                 QKeySequence.StandardKey.Open,
                                 "Open a mesh, voxel grid or point cloud as the target shape")
@@ -224,6 +236,7 @@ class MainWindow(QMainWindow):
     def _make_menus(self) -> None:
         bar = self.menuBar()
         file_menu = bar.addMenu("&File")
+        file_menu.addAction(self.act_new)
         file_menu.addAction(self.act_open_shape)
         file_menu.addAction(self.act_open_params)
         self.recent_menu = file_menu.addMenu("Recent &files")
@@ -237,6 +250,7 @@ class MainWindow(QMainWindow):
         file_menu.addAction(self.act_export_txt)
         file_menu.addAction(self.act_screenshot)
         file_menu.addSeparator()
+        file_menu.addAction(self.act_close)
         file_menu.addAction(self.act_quit)
         edit_menu = bar.addMenu("&Edit")
         for a in (self.act_undo, self.act_redo, None, self.act_add, self.act_duplicate,
@@ -346,6 +360,33 @@ class MainWindow(QMainWindow):
                 QMessageBox.StandardButton.Discard: "discard"}.get(
                     QMessageBox.StandardButton(answer), "cancel")
 
+    def ask_keep_primitives(self, shape_name: str) -> str:
+        """'keep', 'discard' or 'cancel': what happens to the primitives shown when another
+        shape is opened."""
+        n = len(self.doc)
+        box = QMessageBox(QMessageBox.Icon.Question, APP_NAME,
+                          f"Keep the {n} primitive{'s' if n != 1 else ''} for {shape_name}?",
+                          QMessageBox.StandardButton.NoButton, self)
+        box.setInformativeText("Keep: edit them against the new shape (saving then records "
+                               f"{shape_name} as their shape). Discard: start without "
+                               "primitives.")
+        keep = box.addButton("Keep", QMessageBox.ButtonRole.AcceptRole)
+        discard = box.addButton("Discard", QMessageBox.ButtonRole.DestructiveRole)
+        box.addButton(QMessageBox.StandardButton.Cancel)
+        box.setDefaultButton(keep)
+        box.exec()
+        clicked = box.clickedButton()
+        return "keep" if clicked is keep else "discard" if clicked is discard else "cancel"
+
+    def ask_recover(self, recovery: Recovery) -> bool:
+        """Whether to recover the unsaved edits an editor that is gone left behind."""
+        box = QMessageBox(QMessageBox.Icon.Question, APP_NAME, recovery.question(),
+                          QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, self)
+        box.setInformativeText("SweepEdit did not close normally. No: the edits stay "
+                               "recoverable until this session autosaves its own.")
+        box.setDefaultButton(QMessageBox.StandardButton.Yes)
+        return box.exec() == QMessageBox.StandardButton.Yes
+
     def show_status(self, message: str, timeout_ms: int = 6000) -> None:
         self.statusBar().showMessage(message, timeout_ms)
 
@@ -375,6 +416,8 @@ class MainWindow(QMainWindow):
         self.act_undo.setIconText("Undo")
         self.act_redo.setIconText("Redo")
         self.act_add.setEnabled(not fitting)
+        self.act_new.setEnabled(not fitting)
+        self.act_close.setEnabled(not fitting)
         self.act_duplicate.setEnabled(has_sel and not fitting)
         self.act_delete.setEnabled(has_sel and not fitting)
         for a in (self.act_open_shape, self.act_open_params):
@@ -392,8 +435,10 @@ class MainWindow(QMainWindow):
             return self.open_params(path)
         return self.open_shape(path)
 
-    def open_shape(self, path: str | Path) -> bool:
-        """Load `path` as the target shape; on failure report it and keep what was there."""
+    def open_shape(self, path: str | Path, ask: bool = True) -> bool:
+        """Load `path` as the target shape; on failure report it and keep what was there.
+        With primitives shown against another shape, asks whether to keep them (`ask`
+        False: keep them without asking)."""
         path = Path(path)
         if self.fitting:
             return False
@@ -411,10 +456,60 @@ class MainWindow(QMainWindow):
             self.report_error("Cannot open shape", _describe(exc, path))
             return False
         QApplication.restoreOverrideCursor()
-        self.doc.set_shape(shape, path)
+        self.statusBar().clearMessage()
+        # Primitives shown against another shape: keep them for this one or start anew.
+        # Primitives without a shape yet (an official .txt opened first) simply get it.
+        keep = True
+        if len(self.doc) and self.doc.shape is not None and ask:
+            answer = self.ask_keep_primitives(path.name)
+            if answer == "cancel" or (answer == "discard" and not self.maybe_save()):
+                self.show_status(f"Did not open {path.name}")
+                return False
+            keep = answer == "keep"
+        if not keep:
+            self._clear_document()
+        if keep and len(self.doc) and self.doc.shape is not None:
+            self._adopt_shape(shape, path)
+        else:
+            self.doc.set_shape(shape, path)
         self.scene.reset_camera()
         self._add_recent(path)
         self.show_status(f"Opened shape {path.name}")
+        return True
+
+    def _adopt_shape(self, shape: Any, path: Path) -> None:
+        """Keep the primitives for a new target shape: they stay where they are in the view
+        (the normalised frame), and the document now records this shape's frame and path,
+        not the old shape's; it is a change to save."""
+        self.doc.set_shape(shape, path)
+        normalization = getattr(shape, "normalization", None)
+        if normalization is not None:
+            self.doc.abstraction.normalization = copy.deepcopy(normalization)
+        self.doc.abstraction.source = {"path": str(path)}
+        self.stack.mark_modified()
+
+    def _clear_document(self) -> None:
+        """No primitives, no parameter file, an empty history (New, Close, Discard)."""
+        self.doc.set_abstraction(Abstraction(), None, frame_known=False)
+        self.stack.clear()
+
+    def new_document(self) -> bool:
+        """File > New: no shape, no primitives; False when the user cancels."""
+        if self.fitting or not self.maybe_save():
+            return False
+        self._clear_document()
+        self.doc.set_shape(None, None)
+        self.scene.reset_camera()
+        self.autosave.remove()
+        self.show_status("New document")
+        return True
+
+    def close_document(self) -> bool:
+        """File > Close: the window stays, empty (the same as New in a one-document
+        editor); False when the user cancels."""
+        if not self.new_document():
+            return False
+        self.show_status("Closed; open a shape (Ctrl+O) or parameters (Ctrl+Shift+O)")
         return True
 
     def open_params(self, path: str | Path, ask: bool = True) -> bool:
@@ -455,7 +550,7 @@ class MainWindow(QMainWindow):
         if not candidate.is_absolute():
             candidate = params_path.parent / candidate
         if candidate.is_file():
-            self.open_shape(candidate)
+            self.open_shape(candidate, ask=False)
 
     def maybe_save(self) -> bool:
         """Before discarding the document: True to go on, False when the user cancels."""
@@ -491,11 +586,12 @@ class MainWindow(QMainWindow):
 
             write_abstraction(self.doc.abstraction, path)
         except Exception as exc:
-            self.report_error("Cannot save", _describe(exc, path))
+            self.report_error("Cannot save", save_failure_text(exc, path))
             return False
         if path.suffix.lower() == ".json":
             self.doc.set_path(path)
             self.stack.set_clean()
+            self.autosave.remove()  # nothing unsaved is left to recover
         self._add_recent(path)
         self.show_status(f"Saved {path}")
         return True
@@ -774,8 +870,14 @@ class MainWindow(QMainWindow):
         self.doc.select(None)
         how = ("Cancelled; kept the best result" if cancelled
                else "Time limit reached; kept the best result" if timed_out else "Done")
-        self.fit_panel.finish(f"{how}: {len(prims)} primitives in {seconds:.1f} s "
-                              "(Ctrl+Z undoes it)")
+        message = f"{how}: {len(prims)} primitives in {seconds:.1f} s (Ctrl+Z undoes it)"
+        shortfall = fewer_primitives_text(self._fit_values.get("primitives"),
+                                          len(prims) - len(self._fit_locked),
+                                          cancelled or timed_out)
+        if shortfall:
+            message = f"{message}. {shortfall}"
+        self.fit_panel.finish(message)
+        self.show_status(shortfall or message, 15000)
 
     def _on_fit_failed(self, message: str) -> None:
         if self._fit_thread is None:
@@ -812,8 +914,106 @@ class MainWindow(QMainWindow):
                 _orphan_threads.append(thread)
             self._fit_thread = None
         self.metrics.shutdown()
+        self.autosave.shutdown()  # a clean exit leaves no recovery file
         self.plotter.close()
         event.accept()
+
+    # -- recovery -------------------------------------------------------------------------
+    def offer_recovery(self, answer: bool | None = None) -> bool:
+        """Offer the unsaved edits of editors that are gone, newest first (`answer`: True
+        or False answers every offer without asking, for `sweepedit gui --recover`).
+        True when one was recovered; declined ones stay until this session autosaves."""
+        for recovery in self.autosave.orphans():
+            take = self.ask_recover(recovery) if answer is None else answer
+            if take and self.recover(recovery):
+                return True
+            self.autosave.declined(recovery)
+        return False
+
+    def recover(self, recovery: Recovery) -> bool:
+        """Replace the document by exactly the autosaved one: its shape is opened again,
+        its parameter file becomes the document's path, and the autosaved primitives are
+        one undoable step on top of that file (so Ctrl+Z shows what was last saved)."""
+        if self.fitting:
+            return False
+        self._clear_document()
+        self.doc.set_shape(None, None)
+        shape_path = recovery.shape_path
+        if shape_path is not None and shape_path.is_file():
+            self.open_shape(shape_path, ask=False)
+        elif shape_path is not None:
+            self.show_status(f"The shape {shape_path} is gone; recovered the primitives "
+                             "without it", 15000)
+        doc_path = recovery.document_path
+        base = None
+        if doc_path is not None and doc_path.is_file():
+            try:
+                from sweepedit.io.params import read_abstraction
+
+                base = read_abstraction(doc_path)
+            except Exception:  # a damaged file: the recovered state is all there is
+                base = None
+        saved = recovery.abstraction
+        base_from_file = base is not None
+        if base is not None:
+            base.normalization = copy.deepcopy(saved.normalization)
+        else:
+            base = Abstraction(normalization=copy.deepcopy(saved.normalization))
+        base.source = copy.deepcopy(saved.source)
+        base.extras = copy.deepcopy(saved.extras)
+        self.doc.set_abstraction(base, doc_path, frame_known=recovery.frame_known)
+        self.stack.clear()
+        self.stack.push(ReplacePrimitives([p.copy() for p in saved.primitives],
+                                          copy.deepcopy(saved.fit),
+                                          text="Recover unsaved edits"))
+        if base_from_file is False:
+            self.stack.mark_modified()  # undo must not make an unsaved document look saved
+        self.autosave.taken(recovery)
+        self.scene.reset_camera()
+        self.show_status(f"Recovered the unsaved edits of {recovery.title}", 15000)
+        return True
+
+
+def save_failure_text(exc: BaseException, path: Path) -> str:
+    """Why a save failed and what to do, in the user's words (not "[Errno 2] ...")."""
+    what = f"Could not save {path.name}"
+    folder = path.parent
+    if isinstance(exc, OSError):
+        code = exc.errno
+        if code == errno.ENOENT or (code is None and not folder.is_dir()):
+            return f"{what}: the folder {folder} does not exist. Choose another folder."
+        if code in (errno.EACCES, errno.EPERM):
+            return (f"{what}: you may not write to the folder {folder}. "
+                    "Choose another folder.")
+        if code == errno.EROFS:
+            return f"{what}: {folder} is on a read-only disk. Choose another folder."
+        if code == errno.ENOSPC:
+            return f"{what}: the disk is full. Free some space or choose another disk."
+        if code == errno.EISDIR:
+            return f"{what}: {path} is a folder. Choose another name."
+        if code == errno.ENOTDIR:
+            return f"{what}: part of {folder} is a file, not a folder. Choose another folder."
+        return f"{what}: {exc.strerror or exc}. Choose another folder or name."
+    if isinstance(exc, SweepeditError):  # the format cannot hold it; its message says why
+        return f"{what}: {str(exc).removeprefix(f'{path}: ')}"
+    return f"{what}: {exc} ({type(exc).__name__})"
+
+
+def fewer_primitives_text(asked: Any, got: int, stopped: bool) -> str:
+    """Why a fit gave fewer primitives than asked for; '' when it did not."""
+    try:
+        asked = int(asked)
+    except (TypeError, ValueError):
+        return ""
+    if got >= asked:
+        return ""
+    plural = "s" if asked != 1 else ""
+    if stopped:
+        why = ("the fit was stopped before it had placed them all; it keeps the best "
+               "result so far (run it again to let it finish)")
+    else:
+        why = ("the fit drops primitives that add nothing the others do not already cover")
+    return f"Asked for {asked} primitive{plural}, got {got}: {why}."
 
 
 def _describe(exc: BaseException, path: Path) -> str:
