@@ -58,7 +58,8 @@ def window(qtbot, tmp_path: Path):
     from sweepedit.app.window import MainWindow
 
     settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
-    w = MainWindow(settings=settings)
+    # Recovery files go to the test's folder, never the user's data folder.
+    w = MainWindow(settings=settings, recovery_dir=tmp_path / "recovery")
     w.errors = []  # type: ignore[attr-defined]
     w.answers = []  # type: ignore[attr-defined]  # queued answers to ask_save_changes
     w.report_error = lambda title, message: w.errors.append((title, message))  # type: ignore[method-assign]
