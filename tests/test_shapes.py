@@ -12,7 +12,8 @@ import pytest
 import scipy.ndimage as ndi
 import trimesh
 
-from sweepedit.errors import FileFormatError
+from sweepedit.errors import DegenerateShapeError, FileFormatError
+from sweepedit.io import occupancy as occ
 from sweepedit.io.shapes import load_shape
 
 R = 64
@@ -308,11 +309,22 @@ def test_million_face_mesh_loads_in_seconds(tmp_path):
     assert elapsed < 15.0
 
 
-def test_a_few_points_in_a_plane_still_load(tmp_path):
-    # Too sparse to enclose anything: the shell of point cells stays (PointCloudInside's
-    # limits), and the display surface keeps those cells instead of blurring them away.
+def test_a_few_points_in_a_plane_are_refused(tmp_path):
+    # Issue 18: fewer than 10 points, or points in one plane, enclose nothing to fit.
     path = tmp_path / "flat.xyz"
     path.write_text("0 0 0\n1 0 0\n0 1 0\n1 1 0\n0.5 0.5 0\n")
-    shape = _load(path)
-    assert shape.kind == "points" and shape.occupancy.sum() == 5
-    assert len(shape.surface.faces) > 0 and shape.surface.is_watertight
+    with pytest.raises(DegenerateShapeError, match="too few"):
+        _load(path)
+    path.write_text("".join(f"{x} {y} 0\n" for x in range(4) for y in range(4)))
+    with pytest.raises(DegenerateShapeError, match="one plane"):
+        _load(path)
+
+
+def test_grid_surface_keeps_a_sparse_shell_of_cells():
+    # Where blurring would take every cell below the level (a sparse shell of single
+    # cells), the display surface keeps the cells instead of blurring them away.
+    grid = np.zeros((8, 8, 8), dtype=bool)
+    grid[[1, 6, 1, 6, 3], [1, 1, 6, 6, 3], 4] = True
+    surface = occ.grid_surface(grid, np.full(3, -0.5), np.full(3, 0.5), smooth=0.7)
+    assert len(surface.faces) > 0 and surface.is_watertight
+    assert len(trimesh.graph.connected_components(surface.face_adjacency)) == 5

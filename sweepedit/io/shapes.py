@@ -22,12 +22,20 @@ every consumer (fitting, metrics, skeleton, the app) needs them at once. That is
 for the benchmark meshes and ~3-5 s for 1.3M faces on 2 cores; `surface_samples` is
 computed on demand.
 
-Every problem with the input file is raised as `FileFormatError(path, message)`.
+Every problem with the input file is raised as `FileFormatError(path, message)`; a
+file that reads but gives a fit nothing to do (flat, a line, fewer than MIN_POINTS points,
+an open sheet or specks that enclose fewer than MIN_INSIDE_CELLS cells of the grid) as
+its subclass `DegenerateShapeError`. Headers are checked against the file's size before a
+reader runs (sweepedit.io.headers), so a header claiming 10^12 faces allocates nothing.
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
+import struct
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -35,9 +43,10 @@ from typing import Literal
 import numpy as np
 import trimesh
 
-from sweepedit.errors import FileFormatError
+from sweepedit.errors import DegenerateShapeError, FileFormatError
 from sweepedit.geometry.model import Normalization
 from sweepedit.io import occupancy as occ
+from sweepedit.io.headers import MAX_VOXEL_CELLS, check_claimed_sizes
 
 ShapeKind = Literal["mesh", "voxels", "points"]
 
@@ -48,6 +57,19 @@ SUPPORTED_EXTENSIONS = MESH_EXTENSIONS + VOXEL_EXTENSIONS + POINT_EXTENSIONS
 MAX_VOXEL_RESOLUTION = 256
 # Keys tried first, in order, when an .npz file holds several arrays.
 NPZ_KEYS = ("occupancy", "voxels", "voxel", "grid", "data", "arr_0")
+# A point cloud needs this many points to describe a solid at all.
+MIN_POINTS = 10
+# Cells of the grid (winding test at the centres) a shape must enclose to be fitted: the
+# fit needs an inside whose boundary it can sample (a sheet, a line or specks have none).
+MIN_INSIDE_CELLS = 2
+# Points within this share of the shape's size of one plane (or line) are flat (a line).
+FLAT_TOLERANCE = 1e-6
+# Winding number that a cell centre must pass for an open mesh to enclose it firmly.
+FIRM_WINDING = 0.75
+# Exceptions that our own code raises on the unusual arrays a bad file produces; they are
+# reported against the file. Anything else is a bug and propagates as it is.
+_DATA_ERRORS = (ValueError, KeyError, IndexError, struct.error, UnicodeDecodeError, EOFError,
+                zipfile.BadZipFile, zlib.error, OverflowError, np.linalg.LinAlgError)
 
 
 @dataclass
@@ -143,6 +165,7 @@ def load_shape(path: str | Path, resolution: int = occ.DEFAULT_RESOLUTION,
     if len(data.strip()) == 0:
         raise FileFormatError(path, "the file is empty")
     digest = hashlib.sha256(data).hexdigest()
+    check_claimed_sizes(path, ext, data)
     del data
 
     try:
@@ -161,12 +184,40 @@ def load_shape(path: str | Path, resolution: int = occ.DEFAULT_RESOLUTION,
     except FileFormatError:
         raise
     except MemoryError:
-        raise
-    except Exception as exc:  # any reader or geometry failure on a bad file
+        raise FileFormatError(path, "not enough memory to load it") from None
+    except _DATA_ERRORS as exc:
         raise FileFormatError(path, f"cannot read the {ext} file ({type(exc).__name__}: "
-                                    f"{exc})") from exc
+                                    f"{_short(exc)})") from exc
     shape.sha256 = digest
+    check_fittable(shape)
     return shape
+
+
+def _short(exc: BaseException, limit: int = 200) -> str:
+    text = " ".join(str(exc).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def check_fittable(shape: Shape) -> None:
+    """Raise DegenerateShapeError (naming the file) if the shape encloses fewer than
+    MIN_INSIDE_CELLS cells of its grid: the fit would have nothing to do. `load_shape`
+    calls it, and so does the fit for shapes made otherwise; it costs a count."""
+    inside = int(np.count_nonzero(shape.winding_occupancy))
+    if inside >= MIN_INSIDE_CELLS:
+        return
+    if shape.kind == "points":
+        why = "the points enclose no volume: an open or sparsely sampled scan?"
+    elif shape.kind == "voxels":
+        why = "its voxels are thinner than a cell of the grid"
+    elif not shape.surface.is_watertight and shape.n_components == 1:
+        why = "it is an open surface, a sheet that encloses nothing"
+    elif shape.n_components > 1:
+        why = f"it is {shape.n_components} disjoint pieces, each thinner than a cell"
+    else:
+        why = "all of it is thinner than a cell of the grid"
+    raise DegenerateShapeError(
+        shape.path, f"degenerate shape: {inside} of the {shape.resolution}^3 grid cells lie "
+                    f"inside it ({why}); there is nothing to fit")
 
 
 # --------------------------------------------------------------------------- readers
@@ -177,9 +228,11 @@ def _read_mesh(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray | None, np.
     applied), or (P, 3) points and faces None for a PLY point cloud."""
     try:
         scene = trimesh.load_scene(str(path), file_type=ext[1:], process=False)
-    except Exception as exc:
+    except MemoryError:
+        raise FileFormatError(path, "not enough memory to load it") from None
+    except Exception as exc:  # trimesh's readers raise anything on a malformed file
         raise FileFormatError(path, f"cannot read the {ext} file ({type(exc).__name__}: "
-                                    f"{exc})") from exc
+                                    f"{_short(exc)})") from exc
     vertex_blocks, face_blocks, point_blocks = [], [], []
     offset = 0
     for node in scene.graph.nodes_geometry:
@@ -305,17 +358,23 @@ def _read_binvox(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         scale = float(header.get("scale", ["1"])[0])
     except (KeyError, ValueError) as exc:
         raise FileFormatError(path, f"bad binvox header ({exc})") from exc
-    if len(dims) != 3 or min(dims) < 1 or translate.shape != (3,) or not scale > 0:
+    if (len(dims) != 3 or min(dims) < 1 or translate.shape != (3,)
+            or not np.all(np.isfinite(translate)) or not 0 < scale < math.inf):
         raise FileFormatError(path, "bad binvox header (dim, translate or scale)")
+    expected = math.prod(dims)
+    if expected > MAX_VOXEL_CELLS:
+        raise FileFormatError(path, f"the binvox grid {'x'.join(map(str, dims))} has "
+                                    f"{expected:,} cells; at most {MAX_VOXEL_CELLS:,} are read")
     body = np.frombuffer(raw, dtype=np.uint8, offset=pos)
     if body.size % 2:
         body = body[:-1]
     values, counts = body[0::2], body[1::2].astype(np.int64)
-    total = int(counts.sum())
-    expected = dims[0] * dims[1] * dims[2]
+    ends = np.cumsum(counts)
+    total = int(ends[-1]) if ends.size else 0
     if total < expected:
         raise FileFormatError(path, f"truncated binvox data ({total} of {expected} voxels)")
-    flat = np.repeat(values > 0, counts)[:expected]
+    runs = int(np.searchsorted(ends, expected)) + 1  # runs past the grid are ignored
+    flat = np.repeat(values[:runs] > 0, counts[:runs])[:expected]
     grid = flat.reshape(dims).transpose(0, 2, 1)  # stored [x, z, y] -> [x, y, z]
     lower = translate
     upper = translate + scale * np.array(grid.shape) / max(grid.shape)
@@ -328,14 +387,84 @@ def _read_binvox(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _check_finite(path: Path, array: np.ndarray, what: str) -> None:
     if array.size and not np.all(np.isfinite(array)):
         bad = int(np.count_nonzero(~np.all(np.isfinite(array.reshape(-1, 3)), axis=1)))
-        raise FileFormatError(path, f"{bad} {what} have NaN or infinite coordinates")
+        noun = what if bad != 1 else what.removesuffix("s")
+        raise FileFormatError(path, f"{bad} {noun} {'has' if bad == 1 else 'have'} NaN or "
+                                    "infinite coordinates")
 
 
 def _normalization(path: Path, points: np.ndarray) -> Normalization:
+    """Box centre to the origin, longest side to 1; DegenerateShapeError for a single
+    point, or a shape too small for its distance from the origin to keep its digits."""
     lower, upper = points.min(axis=0), points.max(axis=0)
-    if float(np.max(upper - lower)) <= 1e-12 * max(1.0, float(np.max(np.abs(points)))):
-        raise FileFormatError(path, "degenerate shape: all of it lies at one point")
+    with np.errstate(over="ignore"):
+        extent = float(np.max(upper - lower))
+    if not math.isfinite(extent):
+        raise FileFormatError(path, "coordinates too large: the shape's size overflows")
+    _check_precision(path, points)
     return Normalization.from_bounds(lower, upper)
+
+
+def _check_precision(path: Path, points: np.ndarray) -> None:
+    """DegenerateShapeError if the (P, 3) points span no more than ~1000 steps of float64
+    at their distance from the origin (a point, or rounding noise far out)."""
+    with np.errstate(over="ignore"):
+        extent = float(np.max(points.max(axis=0) - points.min(axis=0)))
+    if extent == 0.0:
+        raise DegenerateShapeError(path, "degenerate shape: all of it lies at one point")
+    far = float(np.max(np.abs(points)))
+    if extent < 1e3 * np.spacing(far):
+        raise DegenerateShapeError(path, f"degenerate shape: it is {extent:.3g} across but "
+                                         f"lies {far:.3g} from the origin, where coordinates "
+                                         "are too coarse to describe it")
+
+
+def _check_not_flat(path: Path, points: np.ndarray, what: str) -> None:
+    """DegenerateShapeError if the (P, 3) points lie on one line or in one plane, within
+    FLAT_TOLERANCE of their extent (a flat mesh or scan encloses no volume)."""
+    centred = points - points.mean(axis=0)
+    # Principal directions; the extent along each is measured on the points themselves
+    # (projections keep full precision where the squared covariance would not).
+    _, axes = np.linalg.eigh(centred.T @ centred)
+    extents = np.ptp(centred @ axes, axis=0)  # ascending variance: thinnest first
+    size = float(extents.max())
+    if extents[1] <= FLAT_TOLERANCE * size:
+        raise DegenerateShapeError(path, f"degenerate shape: all {what} lie on one line; it "
+                                         "encloses no volume")
+    if extents[0] <= FLAT_TOLERANCE * size:
+        raise DegenerateShapeError(path, f"degenerate shape: all {what} lie in one plane (a "
+                                         "flat shape encloses no volume)")
+
+
+def _conditioning(points: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """(3,) shift and factor (a power of two) that bring the (P, 3) points to about unit
+    size at the origin, `(points - shift) * factor`, when they are far from that; None
+    for shapes of ordinary size and place, which are left exactly as read (so their
+    results do not change).
+
+    trimesh merges vertices by rounding them to 1e-8 and drops faces lower than that
+    (absolute tolerances, int64 keys): a shape 1e-12 across collapses to a point and one
+    1e12 from the origin overflows the keys.
+    """
+    lower, upper = points.min(axis=0), points.max(axis=0)
+    extent = float(np.max(upper - lower))
+    far = float(np.max(np.abs(points)))
+    if not 0.0 < extent < math.inf or (2.0**-10 <= extent <= 2.0**20 and far <= 2.0**30):
+        return None
+    return (lower + upper) / 2.0, math.ldexp(1.0, -math.floor(math.log2(extent)))
+
+
+def _check_encloses_volume(path: Path, mesh: trimesh.Trimesh, inside: np.ndarray) -> None:
+    """DegenerateShapeError if an open mesh bounds nothing: its winding number passes
+    0.5 near a curved sheet (it jumps by 1 across it), but stays below FIRM_WINDING;
+    inside a closed mesh it is 1, near a small hole little less. inside: (R, R, R) bool."""
+    if mesh.is_watertight or not inside.any():
+        return
+    centres = occ.cell_centers(inside.shape[0])[inside.ravel()]
+    firm = np.abs(occ.winding_numbers(mesh.vertices, mesh.faces, centres)) > FIRM_WINDING
+    if np.count_nonzero(firm) < MIN_INSIDE_CELLS:
+        raise DegenerateShapeError(path, "degenerate shape: it is an open surface, a sheet "
+                                         "that encloses no volume (its winding number stays "
+                                         f"below {FIRM_WINDING}); there is nothing to fit")
 
 
 def _shape_from_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, resolution: int,
@@ -347,20 +476,30 @@ def _shape_from_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, resolu
     used = np.zeros(vertices.shape[0], dtype=bool)
     used[faces.ravel()] = True  # unreferenced vertices may hold anything
     _check_finite(path, vertices[used], "vertices")
+    _check_precision(path, vertices[used])
+    conditioning = _conditioning(vertices[used])
+    shift, factor = conditioning or (np.zeros(3), 1.0)
+    if conditioning is not None:
+        vertices = (vertices - shift) * factor
     # Merging by position restores the topology of meshes split at texture seams.
     mesh = trimesh.Trimesh(vertices, faces, process=True, validate=False)
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.remove_unreferenced_vertices()
     if len(mesh.faces) == 0 or mesh.area <= 0:
-        raise FileFormatError(path, "the mesh has no faces of non-zero area")
-    normalization = _normalization(path, mesh.vertices)
-    mesh.vertices = normalization.to_normalized(mesh.vertices)
+        raise DegenerateShapeError(path, "degenerate shape: the mesh has no faces of "
+                                         "non-zero area")
+    _check_not_flat(path, mesh.vertices, "its vertices")
+    conditioned = _normalization(path, mesh.vertices)
+    mesh.vertices = conditioned.to_normalized(mesh.vertices)
+    normalization = Normalization(center=conditioned.center / factor + shift,
+                                  scale=conditioned.scale / factor)
     # An inside-out mesh is turned outward (renderers and normals want that); the inside
     # test uses |winding number| anyway, which also covers single inside-out components.
     if occ.signed_volume(mesh) < 0:
         mesh.invert()
     grids, samples = occ.voxelize_mesh(mesh, resolution, n_samples, seed)
     _check_occupancy(path, grids.occupancy)
+    _check_encloses_volume(path, mesh, grids.winding_occupancy)
     return Shape(path=path, kind="mesh", normalization=normalization, surface=mesh,
                  occupancy=grids.occupancy, winding_occupancy=grids.winding_occupancy,
                  samples=samples)
@@ -410,10 +549,12 @@ def _shape_from_points(path: Path, points: np.ndarray, resolution: int, n_sample
     if points.shape[0] == 0:
         raise FileFormatError(path, "the point cloud has no points")
     _check_finite(path, points, "points")
-    if points.shape[0] < 4:
-        raise FileFormatError(path, f"too few points ({points.shape[0]}) for a shape")
+    if points.shape[0] < MIN_POINTS:
+        raise DegenerateShapeError(path, f"degenerate shape: {points.shape[0]} points are "
+                                         f"too few for a solid (at least {MIN_POINTS})")
     normalization = _normalization(path, points)
     cloud = normalization.to_normalized(points)
+    _check_not_flat(path, cloud, "its points")
     grids, samples, inside = occ.voxelize_points(cloud, resolution, n_samples, seed)
     _check_occupancy(path, grids.occupancy)
     surface = occ.grid_surface(grids.winding_occupancy if grids.winding_occupancy.any()
