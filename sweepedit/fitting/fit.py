@@ -427,9 +427,11 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     the best abstraction found within it is returned (the warm start at worst).
     """
     from sweepedit.analysis.skeleton import compute_skeleton
+    from sweepedit.io.shapes import check_fittable
 
     settings = settings or FitSettings()
     settings.validate()
+    check_fittable(shape)  # a shape that encloses nothing stops here, not in a step
     device = resolve_device(settings.device)
     configure_threads()
     cancel = cancel or threading.Event()

@@ -337,8 +337,8 @@ class PointCloudInside:
     half a cell all round).
 
     Limits: the surface must be closed and sampled without holes wider than about
-    2 * MAX_CLOSING_CELLS cells; an open scan (a missing side) encloses nothing and only its
-    shell of point cells remains (as a thin part). Parts closer together than about 2r
+    2 * MAX_CLOSING_CELLS cells; an open scan (a missing side) encloses nothing, and
+    `load_shape` refuses it (DegenerateShapeError). Parts closer together than about 2r
     merge and concave details smaller than r fill in. Input normals are not used.
     """
 
