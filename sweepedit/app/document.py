@@ -122,6 +122,7 @@ class Document:
 
     def __init__(self, abstraction: Abstraction | None = None) -> None:
         self.abstraction: Abstraction = abstraction if abstraction is not None else Abstraction()
+        ensure_unique_names(self.abstraction.primitives)
         self.shape: Any | None = None  # sweepedit.io.shapes.Shape
         self.shape_path: Path | None = None
         self.path: Path | None = None  # the parameter file, once opened or saved
