@@ -93,8 +93,8 @@ class AnalyticSweeper(Sweeper):
     by one extra station beyond each end (along the end tangents, `cap_margin` long). For
     each query q, h_i = (q - s_i).T_i is evaluated at every station (one matmul); a sign
     change of h between stations i and i+1 brackets a plane through q (as in the exact
-    test). Among the brackets, the `candidates` nearest to q (by distance to station i)
-    are kept -- a discrete choice, made without gradients. For each kept bracket, the root
+    test); every bracket is kept -- a discrete choice, made without gradients. For each
+    bracket, the root
     is interpolated linearly (λ = h_i / (h_i - h_{i+1})), and with it the point, frame,
     scale f and arc length. The in-plane coordinates x, y (divided by f) give the
     superellipse level L = |x/a|^d + |y/b|^d (sweep.superellipse_level); r = L^(1/d) is a
@@ -103,18 +103,17 @@ class AnalyticSweeper(Sweeper):
     as the arc length e from each end (negative beyond the caps). The bracket's occupancy
     is sigmoid(min(-sd, e_start, e_end) / τ) (a CSG intersection, whose 0.5 level is the
     boundary itself), with the temperature τ = 1 / sharpness (a length), and the
-    primitive's occupancy is the maximum over the kept brackets. As the sharpness grows
+    primitive's occupancy is the maximum over its brackets. As the sharpness grows
     (and with enough stations) this tends to the exact test.
 
     sharpness: 1/τ in 1/length units (default 200: τ = 0.005, a third of a 64^3 cell;
     lower it for wider gradient bands while fitting -- the 0.5 level barely moves).
-    stations: number of axis samples S (default 48). candidates: brackets kept per query
-    (default 3; folded axes and fat profiles cross several planes).
+    stations: number of axis samples S (default 48).
     Queries outside a box around the primitive, or farther than its largest radius from
     every 4th station, are not evaluated (occupancy 0, below sigmoid(-12) there anyway).
     """
 
-    def __init__(self, sharpness: float = 200.0, stations: int = 48, candidates: int = 3,
+    def __init__(self, sharpness: float = 200.0, stations: int = 48,
                  cap_margin: float | None = None, layout: ParamLayout | None = None,
                  n_scaling: int = 2) -> None:
         super().__init__(layout, n_scaling)
@@ -122,12 +121,10 @@ class AnalyticSweeper(Sweeper):
             raise ValueError("stations must be at least 2")
         self.sharpness = float(sharpness)
         self.stations = int(stations)
-        self.candidates = int(candidates)
         self.cap_margin = cap_margin
 
     def extra_repr(self) -> str:
-        return f"sharpness={self.sharpness}, stations={self.stations}, " \
-               f"candidates={self.candidates}"
+        return f"sharpness={self.sharpness}, stations={self.stations}"
 
     def _margin(self) -> float:
         return self.cap_margin if self.cap_margin is not None else 8.0 / self.sharpness
@@ -140,16 +137,12 @@ class AnalyticSweeper(Sweeper):
         N = B * K
         st = self._stations(params)
         q = queries[:, None].expand(B, K, Q, 3).reshape(N, Q, 3)
-        rows, cols, bracket, valid = self._brackets(q.detach(), st)
+        rows, pair, bracket = self._brackets(q.detach(), st)  # (V,) each
         out = q.new_zeros(N * Q)
         if rows.numel() == 0:
             return out.reshape(B, K, Q) + 0.0 * params.sum()
         S1 = st["affine"].shape[1]
-        # Only the brackets that exist: most queries cross one plane, so evaluating all
-        # `candidates` per query would mostly compute (and differentiate) zeros.
-        hit, slot = torch.nonzero(valid, as_tuple=True)  # (V,) each
-        pair = (rows * Q + cols).index_select(0, hit)  # (V,) flat (primitive, query)
-        flat = rows.index_select(0, hit) * S1 + bracket[hit, slot]
+        flat = rows * S1 + bracket
         aff = st["affine"].reshape(N * S1, 4, 6).index_select(0, flat)  # (V, 4, 6)
         extra = st["extra"].reshape(N * S1, 8).index_select(0, flat)  # (V, 8)
         qr = q.reshape(N * Q, 3).index_select(0, pair)  # (V, 3)
@@ -222,13 +215,14 @@ class AnalyticSweeper(Sweeper):
 
     @torch.no_grad()
     def _brackets(self, q: torch.Tensor, st: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
-        """The brackets nearest to each in-box query (no gradient), for all primitives in
-        one batched call (a Python loop over primitives cost more than the arithmetic).
+        """Every bracket of every in-reach query (no gradient), for all primitives in one
+        batched call (a Python loop over primitives cost more than the arithmetic).
 
-        q (N, Q, 3) -> rows, cols (R,): (primitive, query) pairs with the query in the
-        primitive's box and within reach of its coarse stations; bracket (R, C): indices
-        i of the `candidates` brackets [i, i+1] where h changes sign whose station i is
-        nearest to the query; valid (R, C): False where there are fewer brackets.
+        q (N, Q, 3) -> rows, pairs, bracket (V,): for each bracket [i, i+1] where h changes
+        sign, its primitive, its flat (primitive, query) index and i. Only queries in the
+        primitive's box and within reach of its coarse stations are tested. Most queries
+        cross one plane, so listing the crossings directly (no nearest-k selection) is
+        both cheaper and closer to the exact test, which considers every plane.
         """
         pts, tan = st["points"].detach(), st["tangents"].detach()  # (N, S+2, 3)
         coarse, reach = st["coarse"].detach(), st["reach"].detach()
@@ -240,24 +234,14 @@ class AnalyticSweeper(Sweeper):
                             alpha=-2.0) + q2
         keep &= d2c.amin(dim=2) <= (reach * reach)[:, None]
         rows, cols = torch.nonzero(keep, as_tuple=True)
-        C = self.candidates
-        if rows.numel() == 0:
-            empty = torch.zeros(0, dtype=torch.long, device=q.device)
-            return empty, empty, empty[:, None].expand(0, C), torch.zeros(
-                0, C, dtype=torch.bool, device=q.device)
-        # h and |p|^2 - 2 q.p at every station for all pairs as batched matmuls (cheaper
-        # than gathering each kept pair's stations), then the kept pairs' rows.
+        # h at every station for all pairs as one batched matmul (cheaper than gathering
+        # each kept pair's stations), then the kept pairs' rows.
         offs = (pts * tan).sum(-1)  # (N, S+2)
         pairs = rows * q.shape[1] + cols
         h = torch.baddbmm(-offs[:, None], q, tan.transpose(1, 2)).flatten(0, 1).index_select(
             0, pairs)  # (R, S+2)
-        base = pts[:, :-1]
-        d2 = torch.baddbmm((base * base).sum(-1)[:, None], q, base.transpose(1, 2),
-                           alpha=-2.0).flatten(0, 1).index_select(0, pairs)  # (R, S+1)
-        d2.masked_fill_((h[:, :-1] * h[:, 1:]) > 0.0, math.inf)  # no sign change there
-        C = min(C, d2.shape[1])
-        vals, idx = torch.topk(d2, C, dim=1, largest=False, sorted=True)
-        return rows, cols, idx, torch.isfinite(vals)
+        hit, bracket = torch.nonzero((h[:, :-1] * h[:, 1:]) <= 0.0, as_tuple=True)
+        return rows.index_select(0, hit), pairs.index_select(0, hit), bracket
 
 
 # ----------------------------------------------------------------------------------------
