@@ -35,13 +35,48 @@ DEFAULT_SHAPES = BENCHMARK_DIR
 def _cmd_export(args: argparse.Namespace) -> int:
     from sweepedit.io.mesh_export import export_abstraction
     from sweepedit.io.params import read_abstraction
+    from sweepedit.io.step_export import is_step_path
 
     abstraction = read_abstraction(args.params)
+    if is_step_path(args.output):
+        return _export_step(abstraction, args)
+    if args.union:
+        raise SweepeditError("--union is for STEP files; a mesh export is the union already")
     written = export_abstraction(abstraction, args.output, per_primitive=args.per_primitive,
                                  original_frame=args.original_frame,
                                  stations=args.stations, profile_points=args.profile_points)
     for path in written:
         print(path)
+    return 0
+
+
+def _export_step(abstraction, args: argparse.Namespace) -> int:
+    """STEP export with a progress bar; Ctrl-C cancels and writes nothing."""
+    import threading
+
+    from tqdm import tqdm
+
+    from sweepedit.io.step_export import export_step
+
+    if args.per_primitive:
+        raise SweepeditError("a STEP file holds one solid per primitive already; "
+                             "drop --per-primitive (or use --union for one fused solid)")
+    cancel = threading.Event()
+    bar = tqdm(total=100, desc="STEP", dynamic_ncols=True, disable=args.quiet,
+               bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}")
+
+    def progress(fraction: float, text: str) -> None:
+        bar.n = round(100 * fraction)
+        bar.set_postfix_str(text, refresh=False)
+        bar.refresh()
+
+    try:
+        report = _run_cancellable(lambda: export_step(
+            abstraction, args.output, union=args.union, original_frame=args.original_frame,
+            progress=progress, cancelled=cancel.is_set), cancel)
+    finally:
+        bar.close()
+    print(report.path)
     return 0
 
 
@@ -435,11 +470,17 @@ def build_parser() -> argparse.ArgumentParser:
                     "Run `sweepedit [FILE]` to open the app.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    p = sub.add_parser("export", help="sweep a parameter file into a mesh (OBJ, PLY, STL, GLB)")
+    p = sub.add_parser("export", help="sweep a parameter file into a mesh (OBJ, PLY, STL, "
+                                      "GLB) or CAD solids (STEP)")
     p.add_argument("params", help="parameter file (.json or official .txt)")
-    p.add_argument("-o", "--output", required=True, help="mesh file to write")
+    p.add_argument("-o", "--output", required=True,
+                   help="file to write: a mesh, or .step/.stp for one smooth solid per "
+                        "visible primitive (needs the 'cad' extra)")
     p.add_argument("--per-primitive", action="store_true",
                    help="write one file per primitive (OUTPUT_NN.ext) instead of the union")
+    p.add_argument("--union", action="store_true",
+                   help="STEP: one fused solid instead of one solid per primitive")
+    p.add_argument("--quiet", action="store_true", help="STEP: no progress bar")
     p.add_argument("--original-frame", action="store_true",
                    help="map back through the normalisation to the shape's original frame")
     p.add_argument("--stations", type=_int_at_least(2), default=64,
@@ -506,7 +547,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="fit every shape of a folder and tabulate the metrics "
                                      "(batch plus the full table)")
     p.add_argument("--shapes", default=str(DEFAULT_SHAPES),
-                   help="folder of shapes (../shared/shapes)")
+                   help="folder of shapes (the 19 bundled with sweepedit; their licences in "
+                        "its manifest.json)")
     p.add_argument("--out", default="bench-out/bench.md",
                    help="table to write (Markdown); .json and a contact sheet .png beside "
                         "it, parameters and meshes in its folder's params/")

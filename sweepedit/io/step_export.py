@@ -55,13 +55,13 @@ CAD_MISSING = "STEP export needs the optional 'cad' extra: pip install 'sweepedi
 
 # Largest distance of the profile's B-spline from the superellipse, as a share of the
 # profile's area over its perimeter (its "thickness"), and the relative area error allowed.
-PROFILE_TOLERANCE = 2e-3
-PROFILE_AREA_TOLERANCE = 1e-4
+PROFILE_TOLERANCE = 5e-3
+PROFILE_AREA_TOLERANCE = 2.5e-4
 # Interpolation nodes per quadrant tried, fewest first.
 PROFILE_NODES = (8, 10, 12, 16, 20, 24, 32, 40, 48, 64)
 # Largest distance of the side surface's control curves from the exact ones at the
-# midpoints between stations, as a share of the same thickness (times f there).
-AXIS_TOLERANCE = 2e-3
+# midpoints between stations, as a share of the profile's reach max(a, b) (times f there).
+AXIS_TOLERANCE = 5e-4
 MIN_SEGMENT_STATIONS = 5
 MAX_SEGMENT_STATIONS = 257
 # Relative precision of OpenCascade's adaptive volume integration.
@@ -193,6 +193,10 @@ def profile_spline(degree: float) -> ProfileSpline:
                     [(1, end * np.linalg.norm(points[-1] - points[-2]) / (1.0 - u[-2]))])
         for bc in (tangents, None):
             spl = make_interp_spline(u, points, k=3, bc_type=bc)
+            # Control points kept in the quadrant keep the curve in it (convex hull
+            # property): by overshooting the axis near a star's cusp, a quadrant would
+            # cross its mirror image and the cap's outline would intersect itself.
+            spl.c = np.maximum(spl.c, 0.0)
             fine = spl(check)
             area = 0.5 * float(np.sum(fine[:-1, 0] * fine[1:, 1] - fine[1:, 0] * fine[:-1, 1]))
             if (_curve_distance(fine, degree) <= tolerance
@@ -271,13 +275,10 @@ def _segment_spline(primitive: SweepPrimitive, t0: float, t1: float, xy: np.ndar
 
 def side_surface(primitive: SweepPrimitive, share: float = AXIS_TOLERANCE) -> SideSurface:
     """The side surface of a primitive (see the module's docstring); along t its control
-    curves are within `share` of the profile's thickness (times f) of the exact ones."""
+    curves are within `share` of the profile's reach (times f) of the exact ones."""
     quads = quadrant_controls(primitive)
     xy = np.concatenate([c for _, c in quads])  # all quadrants' controls, (4 Nk, 2)
-    area = superellipse_area(primitive.a, primitive.b, primitive.degree)
-    perimeter = float(np.sum(np.linalg.norm(np.diff(
-        np.concatenate([c for _, c in quads] + [quads[0][1][:1]]), axis=0), axis=1)))
-    tolerance = share * area / perimeter
+    tolerance = share * max(primitive.a, primitive.b)
     m = primitive.n_control_points - 2
     knots: list[np.ndarray] = []
     poles: list[np.ndarray] = []

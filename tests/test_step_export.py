@@ -1,0 +1,217 @@
+"""STEP export: every file written is read back with OpenCascade's own reader and checked
+against independent truths (closed forms, the exact inside test), and bad input gives one
+line and no file."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sweepedit.cli import main
+from sweepedit.geometry.inside import inside_primitive, inside_union
+from sweepedit.geometry.model import (
+    Abstraction,
+    Normalization,
+    SweepPrimitive,
+    folds_onto_itself,
+)
+from sweepedit.io.params import write_abstraction
+from sweepedit.io.step_export import (
+    CAD_MISSING,
+    ExportCancelledError,
+    StepExportError,
+    closed_form_volume,
+    export_step,
+    read_step,
+    solid_volume,
+    superellipse_area,
+)
+
+needs_occ = pytest.mark.skipif(importlib.util.find_spec("OCP") is None,
+                               reason="the optional 'cad' extra (OpenCascade) is not installed")
+
+
+def _curved() -> list[SweepPrimitive]:
+    """Three primitives that do not fold: a sharp star, a diamond and a rounded box, on
+    curved axes in and out of a plane, with scalings."""
+    return [
+        SweepPrimitive([[-0.3, -0.2, 0.0], [0.0, 0.1, 0.1], [0.3, -0.1, 0.0], [0.35, 0.2, 0.2]],
+                       a=0.06, b=0.04, degree=0.3, scaling=(0.3, -0.2), name="star",
+                       color="#e4572e"),
+        SweepPrimitive([[0.0, -0.3, -0.2], [0.1, -0.3, 0.0], [0.0, -0.2, 0.2]], a=0.05,
+                       b=0.07, degree=1.0, scaling=(-0.3,), name="diamond", color="#29335c"),
+        SweepPrimitive([[-0.2, 0.3, -0.1], [0.0, 0.35, 0.0], [0.2, 0.3, 0.1], [0.3, 0.1, 0.1],
+                        [0.2, 0.0, 0.2]], a=0.04, b=0.03, degree=4.0, scaling=(0.2, 0.1),
+                       name="box", color="#17bebb"),
+    ]
+
+
+def _check(path: Path) -> list:
+    """Read a STEP file back; every shape must pass OpenCascade's checker."""
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    solids = read_step(path)
+    assert all(BRepCheck_Analyzer(s.shape).IsValid() for s in solids)
+    return solids
+
+
+def _monte_carlo(primitives: list[SweepPrimitive], n: int, seed: int = 1
+                 ) -> tuple[float, float]:
+    """Volume of the union by the exact inside test at n points of a padded box, and its
+    standard error: independent of the closed form and of OpenCascade."""
+    rng = np.random.default_rng(seed)
+    cps = np.concatenate([p.control_points for p in primitives])
+    lo, hi = cps.min(axis=0) - 0.15, cps.max(axis=0) + 0.15
+    p = float(inside_union(rng.uniform(lo, hi, (n, 3)), primitives).mean())
+    box = float(np.prod(hi - lo))
+    return p * box, box * math.sqrt(p * (1 - p) / n)
+
+
+def test_closed_form_volume_of_cylinders_and_cones() -> None:
+    # a straight elliptic cylinder: pi a b L; a straight taper f = 1 + s t: times ∫ f^2
+    cyl = SweepPrimitive([[0, 0, 0], [0, 0, 0.2], [0, 0, 0.5]], a=0.1, b=0.05, degree=2.0,
+                         scaling=())
+    assert closed_form_volume(cyl) == pytest.approx(math.pi * 0.1 * 0.05 * 0.5, rel=1e-12)
+    cone = SweepPrimitive([[0, 0, 0], [0.2, 0, 0], [0.4, 0, 0]], a=0.1, b=0.1, degree=1.0,
+                          scaling=(-0.5,))
+    # a diamond of half-diagonals a, b has area 2 a b
+    assert superellipse_area(0.1, 0.1, 1.0) == pytest.approx(0.02, rel=1e-12)
+    assert closed_form_volume(cone) == pytest.approx(0.02 * 0.4 * (1 - 0.5 + 0.25 / 3),
+                                                     rel=1e-12)
+
+
+def test_closed_form_matches_the_exact_inside_test_on_curved_axes() -> None:
+    prim = _curved()[2]
+    assert not folds_onto_itself(prim)
+    estimate, error = _monte_carlo([prim], 400_000)
+    assert closed_form_volume(prim) == pytest.approx(estimate, abs=4 * error)
+
+
+@needs_occ
+def test_one_named_coloured_solid_per_primitive(tmp_path: Path) -> None:
+    prims = _curved()
+    hidden = SweepPrimitive([[0, 0, 0], [0, 0.1, 0], [0, 0.2, 0]], name="hidden",
+                            visible=False)
+    out = tmp_path / "parts.step"
+    progress: list[float] = []
+    report = export_step(Abstraction([*prims, hidden]), out,
+                         progress=lambda f, text: progress.append(f))
+    assert report.solids == 3 and progress[-1] == 1.0 and progress == sorted(progress)
+    solids = _check(out)
+    assert [s.name for s in solids] == ["star", "diamond", "box"]
+    assert [s.color for s in solids] == [p.color for p in prims]
+    for solid, prim in zip(solids, prims, strict=True):
+        assert solid_volume(solid.shape) == pytest.approx(closed_form_volume(prim), rel=1e-3)
+    assert report.size < 250_000 * len(prims)
+
+
+@needs_occ
+def test_original_frame_scales_and_moves_the_solids(tmp_path: Path) -> None:
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+
+    prim = _curved()[1]
+    norm = Normalization([1.0, -2.0, 3.0], 10.0)
+    export_step(Abstraction([prim], norm), tmp_path / "n.stp")
+    export_step(Abstraction([prim], norm), tmp_path / "o.stp", original_frame=True)
+
+    def centre_and_volume(path: Path) -> tuple[np.ndarray, float]:
+        props = GProp_GProps()
+        BRepGProp.VolumeProperties_s(_check(path)[0].shape, props, 1e-7)
+        c = props.CentreOfMass()
+        return np.array([c.X(), c.Y(), c.Z()]), props.Mass()
+
+    c0, v0 = centre_and_volume(tmp_path / "n.stp")
+    c1, v1 = centre_and_volume(tmp_path / "o.stp")
+    assert v1 == pytest.approx(v0 * 1000.0, rel=1e-6)
+    np.testing.assert_allclose(c1, c0 * 10.0 + [1.0, -2.0, 3.0], atol=1e-6)
+
+
+@needs_occ
+def test_union_is_one_solid_that_agrees_with_the_exact_inside_test(tmp_path: Path) -> None:
+    from OCP.BRepClass3d import BRepClass3d_SolidClassifier
+    from OCP.gp import gp_Pnt
+    from OCP.TopAbs import TopAbs_IN
+
+    prims = [
+        SweepPrimitive([[-0.3, 0, 0], [0, 0.15, 0], [0.3, 0, 0]], a=0.08, b=0.05, degree=2.0,
+                       scaling=(0.1, -0.2), name="arch"),
+        SweepPrimitive([[0, -0.2, -0.2], [0, 0.05, 0], [0.05, 0.2, 0.2]], a=0.06, b=0.06,
+                       degree=0.6, name="spike"),
+    ]
+    out = tmp_path / "union.step"
+    export_step(Abstraction(prims), out, union=True)
+    solids = _check(out)
+    assert [s.name for s in solids] == ["union"]
+    estimate, error = _monte_carlo(prims, 300_000)
+    assert solid_volume(solids[0].shape) == pytest.approx(estimate, abs=4 * error)
+    # occupancy of the re-read solid against the exact inside test on a grid
+    c = np.linspace(-0.4, 0.4, 20)
+    grid = np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1).reshape(-1, 3)
+    truth = inside_union(grid, prims)
+    classifier = BRepClass3d_SolidClassifier(solids[0].shape)
+    got = np.array([classifier.Perform(gp_Pnt(*map(float, p)), 1e-7) or
+                    classifier.State() == TopAbs_IN for p in grid])
+    assert truth.sum() > 100
+    assert (got & truth).sum() / (got | truth).sum() >= 0.99
+
+
+@needs_occ
+def test_a_folding_primitive_is_refused_by_name(tmp_path: Path) -> None:
+    # a tight bend with a wide profile: it reaches past the centre of curvature
+    fold = SweepPrimitive([[-0.1, 0, 0], [0, 0.1, 0], [0.1, 0, 0]], a=0.2, b=0.05,
+                          degree=2.0, name="elbow")
+    assert folds_onto_itself(fold)
+    out = tmp_path / "fold.step"
+    with pytest.raises(StepExportError, match="'elbow' folds onto itself"):
+        export_step(Abstraction([_curved()[1], fold]), out)
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+@needs_occ
+def test_cancel_writes_nothing(tmp_path: Path) -> None:
+    out = tmp_path / "c.step"
+    with pytest.raises(ExportCancelledError):
+        export_step(Abstraction(_curved()), out, cancelled=lambda: True)
+    assert list(tmp_path.iterdir()) == []
+
+
+def _write_params(path: Path, prims: list[SweepPrimitive]) -> Path:
+    write_abstraction(Abstraction(prims), path)
+    return path
+
+
+@needs_occ
+def test_cli_writes_step_and_refuses_bad_input_in_one_line(tmp_path: Path, capsys) -> None:
+    params = _write_params(tmp_path / "p.json", _curved()[1:])
+    out = tmp_path / "cli.STP"
+    assert main(["export", str(params), "-o", str(out), "--quiet"]) == 0
+    assert [s.name for s in _check(out)] == ["diamond", "box"]
+    # a NaN in the parameter file
+    data = json.loads(params.read_text())
+    data["primitives"][0]["profile"]["a"] = "NaN"
+    bad = tmp_path / "nan.json"
+    bad.write_text(json.dumps(data).replace('"NaN"', "NaN"))
+    capsys.readouterr()
+    assert main(["export", str(bad), "-o", str(tmp_path / "nan.step"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "nan.json" in err and len(err.strip().splitlines()) == 1
+    # a folder that does not exist
+    assert main(["export", str(params), "-o", str(tmp_path / "no" / "x.step"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "does not exist" in err and len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cli.STP", "nan.json", "p.json"]
+
+
+def test_missing_cad_extra_is_one_line(tmp_path: Path, capsys, monkeypatch) -> None:
+    params = _write_params(tmp_path / "p.json", _curved()[1:2])
+    monkeypatch.setitem(sys.modules, "OCP", None)  # import OCP now raises ImportError
+    assert main(["export", str(params), "-o", str(tmp_path / "x.step"), "--quiet"]) == 2
+    assert capsys.readouterr().err.strip() == f"sweepedit: error: {CAD_MISSING}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.json"]
