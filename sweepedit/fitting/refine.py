@@ -377,6 +377,20 @@ def _refine_pass(prims: list[SweepPrimitive], layout: ParamLayout, points: Scori
     return [best_prims[i] for i in keep], best_occupancy[keep]
 
 
+def optimise_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
+                        points: ScoringPoints, settings: RefineSettings, iterations: int,
+                        rng: np.random.Generator, stop: Callable[[], bool] = _never,
+                        on_step: StepCallback | None = None, *, report_every: int = 10,
+                        stage: str = "refinement", offset: int = 0,
+                        ) -> tuple[list[SweepPrimitive], np.ndarray]:
+    """Adam on the given primitives' parameters alone: no pruning, no residual rounds,
+    the points' locked primitives a fixed member of the union (refit of a selection).
+    Returns the best state by the exact score (the input's at worst) and its exact
+    occupancy (K, N) bool."""
+    return _optimise(list(primitives), layout, points, settings, iterations, rng, stop,
+                     on_step, offset, report_every, stage)
+
+
 def _optimise(prims: list[SweepPrimitive], layout: ParamLayout, points: ScoringPoints,
               settings: RefineSettings, iterations: int, rng: np.random.Generator,
               stop: Callable[[], bool], on_step: StepCallback | None, offset: int,
