@@ -27,7 +27,7 @@ from sweepedit.io.schema import PARAMS_SCHEMA_PATH, params_schema
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 DOC_PAGES = ("primitive.md", "parameter-format.md", "quality.md", "architecture.md",
-             "user-guide.md")
+             "user-guide.md", "fitting.md")
 EXAMPLE_SHAPE = ROOT / "resources" / "examples" / "cactus.off"
 
 
