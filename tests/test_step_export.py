@@ -152,7 +152,7 @@ def test_union_is_one_solid_that_agrees_with_the_exact_inside_test(tmp_path: Pat
     estimate, error = _monte_carlo(prims, 300_000)
     assert solid_volume(solids[0].shape) == pytest.approx(estimate, abs=4 * error)
     # occupancy of the re-read solid against the exact inside test on a grid
-    c = np.linspace(-0.4, 0.4, 20)
+    c = np.linspace(-0.4, 0.4, 14)
     grid = np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1).reshape(-1, 3)
     truth = inside_union(grid, prims)
     classifier = BRepClass3d_SolidClassifier(solids[0].shape)

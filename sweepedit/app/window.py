@@ -209,6 +209,14 @@ class MainWindow(QMainWindow):
                                   tip="Export each visible primitive as its own part")
         self.act_export_txt = A("Export official &txt…", self.export_txt_dialog,
                                 tip="Write SweepNet's primitive_parameters.txt format")
+        self.act_export_step = A("One solid per &primitive…",
+                                 lambda: self.export_step_dialog(False),
+                                 tip="Export each visible primitive as a smooth, named, "
+                                     "coloured CAD solid in one STEP file")
+        self.act_export_step_union = A("&Fused into one solid…",
+                                       lambda: self.export_step_dialog(True),
+                                       tip="Export the union of the visible primitives as "
+                                           "one smooth CAD solid in a STEP file")
         self.act_screenshot = A("Save scree&nshot…", self.screenshot_dialog,
                                 tip="Save the 3D view as a PNG image")
         self.act_quit = A("&Quit", self.close, QKeySequence.StandardKey.Quit)
@@ -247,6 +255,9 @@ class MainWindow(QMainWindow):
         file_menu.addSeparator()
         file_menu.addAction(self.act_export_union)
         file_menu.addAction(self.act_export_parts)
+        step_menu = file_menu.addMenu("Export &STEP (CAD solids)")
+        step_menu.addAction(self.act_export_step)
+        step_menu.addAction(self.act_export_step_union)
         file_menu.addAction(self.act_export_txt)
         file_menu.addAction(self.act_screenshot)
         file_menu.addSeparator()
@@ -424,7 +435,8 @@ class MainWindow(QMainWindow):
             a.setEnabled(not fitting)
         for a in (self.act_save, self.act_save_as, self.act_export_txt):
             a.setEnabled(not fitting)
-        for a in (self.act_export_union, self.act_export_parts):
+        for a in (self.act_export_union, self.act_export_parts, self.act_export_step,
+                  self.act_export_step_union):
             a.setEnabled(has_prims and not fitting)
         self.list_panel.tree.setEnabled(not fitting)
 
@@ -634,6 +646,42 @@ class MainWindow(QMainWindow):
             self.report_error("Cannot export mesh", _describe(exc, path))
             return False
         self.show_status(f"Exported {len(written)} file(s): {', '.join(p.name for p in written)}")
+        return True
+
+    def export_step_dialog(self, union: bool) -> bool:
+        start = self.doc.path or self.doc.shape_path
+        stem = start.stem if start is not None else "primitives"
+        name, _ = QFileDialog.getSaveFileName(self, "Export STEP", f"{stem}.step",
+                                              "STEP (*.step *.stp)")
+        if not name:
+            return False
+        if Path(name).suffix.lower() not in (".step", ".stp"):
+            name += ".step"
+        return self.export_step(name, union)
+
+    def export_step(self, path: str | Path, union: bool = False) -> bool:
+        """Start writing the visible primitives (in the shape's original frame) as STEP
+        solids in a worker thread, behind a progress dialog with Cancel; False if an
+        export is already running."""
+        from sweepedit.app.step_job import start_step_export
+
+        if getattr(self, "_step_job", None) is not None and self._step_job.isRunning():
+            self.show_status("A STEP export is already running")
+            return False
+        path = Path(path)
+
+        def done(report: object) -> None:
+            self.show_status(f"Exported {report.solids} solid(s) to {path.name} "
+                             f"({report.size / 1024:.0f} kB, {report.seconds:.1f} s)")
+
+        def failed(message: str) -> None:
+            if message:
+                self.report_error("Cannot export STEP", message)
+            else:
+                self.show_status("STEP export cancelled; nothing was written")
+
+        self._step_job = start_step_export(self, self.doc.abstraction, path, union,
+                                           done, failed)
         return True
 
     def screenshot_dialog(self) -> bool:
@@ -913,6 +961,10 @@ class MainWindow(QMainWindow):
                 thread.setParent(None)
                 _orphan_threads.append(thread)
             self._fit_thread = None
+        step_job = getattr(self, "_step_job", None)
+        if step_job is not None:  # cancelled between steps; it writes nothing then
+            step_job.cancel()
+            step_job.wait()
         self.metrics.shutdown()
         self.autosave.shutdown()  # a clean exit leaves no recovery file
         self.plotter.close()
