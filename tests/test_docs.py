@@ -268,8 +268,7 @@ LINK = re.compile(r"!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
 def _relative_links(path: Path) -> list[str]:
     text = path.read_text(encoding="utf-8")
     text = re.sub(r"```.*?```", "", text, flags=re.S)  # code blocks hold no links
-    return [t for t in LINK.findall(text)
-            if not re.match(r"[a-z][a-z0-9+.-]*:", t, flags=re.I) and not t.startswith("#")]
+    return [t for t in LINK.findall(text) if not re.match(r"[a-z][a-z0-9+.-]*:", t, flags=re.I)]
 
 
 def test_link_pattern_finds_links() -> None:
@@ -279,9 +278,25 @@ def test_link_pattern_finds_links() -> None:
     assert any(link.startswith("docs/") and link.endswith(".md") for link in links)
 
 
+def _anchors(path: Path) -> set[str]:
+    """GitHub's anchors of a Markdown file's headings: lower case, punctuation dropped,
+    spaces to hyphens."""
+    text = re.sub(r"```.*?```", "", path.read_text(encoding="utf-8"), flags=re.S)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-")
+            for h in re.findall(r"^#+ (.+)$", text, flags=re.M)}
+
+
+def test_anchor_slugs() -> None:
+    assert "units-and-the-normalised-frame" in _anchors(DOCS / "primitive.md")
+    assert "the-official-sweepnet-text-format" in _anchors(DOCS / "parameter-format.md")
+
+
 @pytest.mark.parametrize("path", _markdown_files(), ids=lambda p: p.name)
 def test_relative_links_point_at_files(path: Path) -> None:
     for target in _relative_links(path):
-        file = (path.parent / target.split("#", 1)[0]).resolve()
+        name, _, anchor = target.partition("#")
+        file = (path.parent / name).resolve() if name else path
         assert file.exists(), f"{path.name}: link to {target} points at nothing"
         assert ROOT in file.parents, f"{path.name}: link to {target} leaves the repository"
+        if anchor and file.suffix == ".md":
+            assert anchor in _anchors(file), f"{path.name}: no heading for {target}"
