@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from sweepedit.cli import main
-from sweepedit.geometry.inside import inside_primitive, inside_union
+from sweepedit.geometry.inside import inside_union
 from sweepedit.geometry.model import (
     Abstraction,
     Normalization,
