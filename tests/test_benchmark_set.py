@@ -3,11 +3,9 @@ licence allows shipping, every shape loads, and an installed package carries it.
 
 from __future__ import annotations
 
-import fnmatch
 import json
 import re
 import shutil
-import tomllib
 from pathlib import Path
 
 import pytest
@@ -94,19 +92,6 @@ def test_bench_defaults_to_the_bundled_set() -> None:
         assert "../shared" not in sub.format_help(), name
 
 
-def test_package_data_declares_every_bundled_file() -> None:
-    """pip install copies only what pyproject's package-data names."""
-    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
-    patterns = config["tool"]["setuptools"]["package-data"]["sweepedit"]
-    package = ROOT / "sweepedit"
-    for path in BENCHMARK_DIR.rglob("*"):
-        if path.is_file():
-            relative = path.relative_to(package).as_posix()
-            # setuptools globs: '*' does not cross a folder.
-            assert any(fnmatch.fnmatch(relative, p) and p.count("/") == relative.count("/")
-                       for p in patterns), relative
-
-
 def _copy_set(tmp_path: Path) -> Path:
     folder = tmp_path / "set"
     folder.mkdir()
@@ -139,3 +124,27 @@ def test_benchmark_shapes_refuses_a_bad_manifest(tmp_path: Path, change, message
         benchmark_shapes(folder)
     with pytest.raises(FileFormatError, match="no benchmark manifest"):
         benchmark_shapes(tmp_path)
+
+
+@pytest.mark.slow
+def test_a_built_wheel_carries_the_set_and_the_schema(tmp_path: Path) -> None:
+    """What `pip install` gets: build the wheel from a copy of the package and look in."""
+    import subprocess
+    import sys
+    import zipfile
+
+    source = tmp_path / "src"
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, source / name)
+    shutil.copytree(ROOT / "sweepedit", source / "sweepedit",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps",
+                    "--no-build-isolation", str(source), "-w", str(tmp_path / "dist")],
+                   check=True, capture_output=True, timeout=240)
+    (wheel,) = (tmp_path / "dist").glob("sweepedit-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for path in BENCHMARK_DIR.rglob("*"):
+        if path.is_file():
+            assert path.relative_to(ROOT).as_posix() in names, path.name
+    assert "sweepedit/io/params.schema.json" in names
