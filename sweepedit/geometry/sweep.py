@@ -181,14 +181,30 @@ def axis_frames(control_points: Any, t: Any) -> AxisFrames:
 
     j, u = _segment_index(xp, t, m)
     take = lambda arr: xp.take(arr, j, axis=1)  # noqa: E731  (K, m, 3) -> (K, M, 3)
-    a0, a1, a2 = take(p0), take(p1), take(p2)
-    u3 = u[None, :, None]
-    points = (1.0 - u3) ** 2 * a0 + 2.0 * u3 * (1.0 - u3) * a1 + u3**2 * a2
-    deriv = (1.0 - u3) * (a1 - a0) + u3 * (a2 - a1)
-    T = _segment_tangent(xp, deriv, a2 - a0, a1 - a0)
+    points, T = _points_and_tangents(xp, take(p0), take(p1), take(p2), u)
     ts = take(t_start)
     U, V = _minimal_rotation(xp, ts, T, take(seg_u), take(seg_v), take(normal), take(planar))
     return AxisFrames(points, U, V, T)
+
+
+def _points_and_tangents(xp: Any, a0: Any, a1: Any, a2: Any, u: Any) -> tuple[Any, Any]:
+    """Points and unit tangents of quadratic Bezier segments a0, a1, a2 (K, M, 3) at local
+    parameters u (M,) -> each (K, M, 3)."""
+    u3 = u[None, :, None]
+    points = (1.0 - u3) ** 2 * a0 + 2.0 * u3 * (1.0 - u3) * a1 + u3**2 * a2
+    deriv = (1.0 - u3) * (a1 - a0) + u3 * (a2 - a1)
+    return points, _segment_tangent(xp, deriv, a2 - a0, a1 - a0)
+
+
+def axis_points_tangents(control_points: Any, t: Any) -> tuple[Any, Any]:
+    """Points and unit tangents of the axes, the same as axis_frames' but without the
+    frames (the exact inside test's root search needs only the planes):
+    control_points (K, n, 3), t (M,) -> each (K, M, 3)."""
+    xp = array_namespace(control_points, t)
+    p0, p1, p2 = bezier_segments(control_points)
+    j, u = _segment_index(xp, t, p0.shape[1])
+    a0, a1, a2 = (xp.take(p, j, axis=1) for p in (p0, p1, p2))
+    return _points_and_tangents(xp, a0, a1, a2, u)
 
 
 def axis_points(control_points: Any, t: Any) -> Any:
