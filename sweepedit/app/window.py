@@ -11,6 +11,7 @@ import copy
 import errno
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pyvista as pv
@@ -70,8 +71,14 @@ MESH_EXPORT_TYPES = {"OBJ (*.obj)": "obj", "PLY (*.ply)": "ply", "STL (*.stl)": 
 MAX_RECENT = 10
 MULTI_SAMPLES = 0  # anti-aliasing: FXAA, and only on a GPU (see _check_antialiasing)
 SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "swiftshader", "software rasterizer")
-# Fit threads that outlived their window, kept referenced (see closeEvent).
+# Fit threads that outlived their window, or a cancel's grace period, kept referenced (see
+# closeEvent and _cancel_deadline): destroying a running QThread aborts the process.
 _orphan_threads: list[FitThread] = []
+# After Cancel, the fit has this long to return its best result; then the last preview
+# (what the user sees) is kept and the fit winds down in the background. Under load the
+# fit's low-priority thread can need seconds to reach its next cancel check (measured:
+# 2-4 s with two CPU burners, in shape preparation); the user gets control in < 1 s.
+CANCEL_GRACE_MS = 400
 
 HELP_TEXT = """<b>Mouse</b><br>
 Left-drag: rotate · Shift+left-drag or middle-drag: pan · wheel / right-drag: zoom<br>
@@ -847,6 +854,7 @@ class MainWindow(QMainWindow):
             self.report_error("Cannot fit", "Open a shape first: the fit needs a target.")
             return False
         self._fit_values = dict(values)
+        self._fit_preview: Abstraction | None = None
         self._fit_locked = [p.copy() for p in self.doc.primitives if p.locked]
         self.stack.close_merge()
         # load_fit_api is looked up now, so that tests can substitute a stand-in.
@@ -869,8 +877,29 @@ class MainWindow(QMainWindow):
     def cancel_fit(self) -> None:
         """Stop the fit; its best result so far is applied when it returns."""
         if self._fit_thread is not None:
-            self._fit_thread.cancel()
+            thread = self._fit_thread
+            thread.cancel()
             self.fit_panel.status.setText("Cancelling… (keeping the best result)")
+            QTimer.singleShot(CANCEL_GRACE_MS, lambda: self._cancel_deadline(thread))
+
+    def _cancel_deadline(self, thread: FitThread) -> None:
+        """The cancelled fit has not returned in time: keep the last preview it reported
+        (or nothing, if it reported none) and let the thread finish in the background."""
+        if self._fit_thread is not thread or not thread.isRunning():
+            return
+        for signal in (thread.note, thread.progress, thread.done, thread.failed):
+            signal.disconnect()
+        thread.setParent(None)
+        _orphan_threads.append(thread)
+        preview = self._fit_preview
+        self.last_cancel_timing = {"detached_s": time.perf_counter()
+                                   - (thread.cancel_requested_at or time.perf_counter())}
+        if preview is None:
+            self._on_fit_done(None)
+            return
+        self._on_fit_done(SimpleNamespace(
+            abstraction=preview, seconds=time.perf_counter() - self._fit_started,
+            timed_out=False))
 
     def _on_fit_note(self, text: str) -> None:
         if self._fit_thread is not None and not self._fit_thread.cancel_event.is_set():
@@ -882,6 +911,7 @@ class MainWindow(QMainWindow):
         if not self._fit_thread.cancel_event.is_set():  # keep "Cancelling…" up
             self.fit_panel.show_progress(update)
         if update.abstraction is not None:
+            self._fit_preview = update.abstraction  # kept if a cancel cannot wait
             # Every report carries a complete abstraction, the first one (the warm start)
             # included: the scene shows it at once and each later one replaces it.
             self.scene.show_preview(with_locked(update.abstraction, self._fit_locked))

@@ -375,3 +375,54 @@ def test_file_new_and_close(qtbot, window, small_files) -> None:
     qtbot.keyClick(window.plotter, Qt.Key.Key_W, Qt.KeyboardModifier.ControlModifier)
     assert len(window.doc) == 0 and window.doc.shape is None and window.doc.path is None
     assert window.isVisible()
+
+
+@pytest.mark.gui
+@pytest.mark.parametrize("reports", [True, False])
+def test_cancel_returns_control_within_a_second_when_the_fit_is_slow_to_stop(
+        qtbot, window, small_files, monkeypatch, reports: bool) -> None:
+    """Under load the fit's low-priority thread can take seconds to reach a cancel check;
+    the window keeps the last preview (or nothing) after a short grace and goes on."""
+    import threading
+    from dataclasses import dataclass
+
+    import sweepedit.app.window as window_module
+
+    @dataclass
+    class Settings:
+        primitives: int = 3
+        seed: int = 0
+
+    release = threading.Event()
+    shown = [_primitive(i, f"fit {i}") for i in range(3)]
+
+    def stubborn_fit(shape, settings, *, locked=(), callback=None, cancel=None):
+        if reports:
+            callback(SimpleNamespace(iteration=1, total=100, losses={"total": 1.0},
+                                     abstraction=Abstraction([p.copy() for p in shown])))
+        release.wait(20)  # a starved thread: cancel is seen only much later
+        return SimpleNamespace(abstraction=Abstraction([_primitive(7, "late")]),
+                               seconds=5.0, cancelled=True)
+
+    monkeypatch.setattr(window_module, "load_fit_api", lambda: (stubborn_fit, Settings))
+    window.open_path(small_files["obj"])
+    window.open_path(small_files["json"])
+    before = _snapshot(window.doc)
+    assert window.start_fit(window.fit_panel.values())
+    if reports:
+        qtbot.waitUntil(lambda: window.scene.previewing, timeout=10000)
+    else:
+        qtbot.wait(300)
+    t0 = time.perf_counter()
+    window.cancel_fit()
+    qtbot.waitUntil(lambda: not window.fitting, timeout=3000)
+    assert time.perf_counter() - t0 < 1.0
+    assert window.act_undo.isEnabled() == reports and window.act_open_shape.isEnabled()
+    if reports:
+        assert [p.name for p in window.doc.primitives] == ["fit 0", "fit 1", "fit 2"]
+        assert window.doc.abstraction.fit["cancelled"] is True
+        window.stack.undo()
+    assert _snapshot(window.doc) == before
+    release.set()  # the fit returns late: its result is ignored, nothing breaks
+    qtbot.wait(300)
+    assert _snapshot(window.doc) == before and not window.fitting
