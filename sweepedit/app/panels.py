@@ -775,6 +775,7 @@ class FitPanel(QWidget):
 
     start_requested = Signal(dict)
     cancel_requested = Signal()
+    refit_requested = Signal()
 
     def __init__(self, defaults: dict[str, Any] | None = None,
                  parent: QWidget | None = None) -> None:
@@ -868,6 +869,11 @@ class FitPanel(QWidget):
         buttons = QHBoxLayout()
         buttons.addWidget(self.start_button)
         buttons.addWidget(self.cancel_button)
+        self.refit_button = QPushButton("Refit selection")
+        self.refit_button.setToolTip("Fit only the selected primitives to what the others "
+                                     "leave uncovered; the others stay exactly as they are")
+        self.refit_button.clicked.connect(self.refit_requested)
+        buttons.addWidget(self.refit_button)
 
         # The current stage's own fraction, in tenths of a percent.
         self.progress = QProgressBar()
@@ -919,6 +925,7 @@ class FitPanel(QWidget):
 
     def set_running(self, running: bool) -> None:
         self.start_button.setEnabled(not running)
+        self.refit_button.setEnabled(not running)
         self.cancel_button.setEnabled(running)
         self._enable_inputs()
 

@@ -48,6 +48,7 @@ from sweepedit.app.commands import (
     new_primitive,
 )
 from sweepedit.app.document import Document
+from sweepedit.app.heatmap_view import HeatMapView
 from sweepedit.app.panels import FitPanel, PrimitiveListPanel, PropertiesPanel
 from sweepedit.app.scene import SceneMouse, SweepScene
 from sweepedit.app.worker import (
@@ -57,6 +58,7 @@ from sweepedit.app.worker import (
     call_keeping_window_live,
     load_fit_api,
     preload_fit_api,
+    refit_loader,
     with_locked,
 )
 from sweepedit.errors import SweepeditError
@@ -146,6 +148,8 @@ class MainWindow(QMainWindow):
         self.plotter.add_axes(interactive=False, line_width=2)
         self.scene = SweepScene(self.plotter, self.doc, self.stack)
         self.mouse = SceneMouse(self.scene, self.plotter)
+        self.heatmap = HeatMapView(self.scene, self.doc, self)
+        self.heatmap.failed.connect(lambda m: self.show_status(f"Heat map unavailable: {m}"))
 
         self._fit_thread: FitThread | None = None
         self._fit_locked: list[Any] = []
@@ -170,6 +174,7 @@ class MainWindow(QMainWindow):
         self.doc.path_changed.connect(self._update_title)
         self.doc.selection_changed.connect(lambda _i: self._update_actions())
         self.doc.primitives_reset.connect(self._update_actions)
+        self.doc.shape_changed.connect(self._update_actions)
         self.stack.changed.connect(self._update_actions)
 
         self.setAcceptDrops(True)
@@ -246,6 +251,12 @@ class MainWindow(QMainWindow):
         self.act_show_shape.setChecked(True)
         self.act_reset_camera = A("&Fit view", self.scene.reset_camera, "F",
                                   "Reset the camera to show everything")
+        self.act_heatmap = A("&Heat map of the error", self.toggle_heatmap, tip=(
+            "Colour the target by its distance to the primitives: red missed, blue excess"))
+        self.act_heatmap.setCheckable(True)
+        self.act_refit = A("&Refit selection", self.refit_selection, tip=(
+            "Fit the selected primitives to what the others leave uncovered; the others "
+            "stay exactly as they are"))
         self.act_help = A("&Mouse and keys", self.show_help, QKeySequence.StandardKey.HelpContents)
 
     def _make_menus(self) -> None:
@@ -274,9 +285,12 @@ class MainWindow(QMainWindow):
         for a in (self.act_undo, self.act_redo, None, self.act_add, self.act_duplicate,
                   self.act_delete):
             edit_menu.addSeparator() if a is None else edit_menu.addAction(a)
+        edit_menu.addSeparator()
+        edit_menu.addAction(self.act_refit)
         view_menu = bar.addMenu("&View")
         view_menu.addAction(self.act_show_shape)
         view_menu.addAction(self.act_reset_camera)
+        view_menu.addAction(self.act_heatmap)
         self.view_menu = view_menu
         help_menu = bar.addMenu("&Help")
         help_menu.addAction(self.act_help)
@@ -314,6 +328,7 @@ class MainWindow(QMainWindow):
         self.fit_panel = FitPanel()
         self.fit_panel.start_requested.connect(self.start_fit)
         self.fit_panel.cancel_requested.connect(self.cancel_fit)
+        self.fit_panel.refit_requested.connect(lambda: self.refit_selection())
 
         def dock(title: str, widget: QWidget, area: Qt.DockWidgetArea) -> QDockWidget:
             d = QDockWidget(title, self)
@@ -438,6 +453,7 @@ class MainWindow(QMainWindow):
         self.act_close.setEnabled(not fitting)
         self.act_duplicate.setEnabled(has_sel and not fitting)
         self.act_delete.setEnabled(has_sel and not fitting)
+        self.act_refit.setEnabled(has_sel and not fitting and self.doc.shape is not None)
         for a in (self.act_open_shape, self.act_open_params):
             a.setEnabled(not fitting)
         for a in (self.act_save, self.act_save_as, self.act_export_txt):
@@ -799,6 +815,31 @@ class MainWindow(QMainWindow):
     def toggle_shape(self) -> None:
         self.set_shape_visible(self.act_show_shape.isChecked())
 
+    def toggle_heatmap(self) -> None:
+        self.set_heatmap_visible(self.act_heatmap.isChecked())
+
+    def set_heatmap_visible(self, visible: bool) -> bool:
+        """Show or hide the heat map of the error (needs a target shape)."""
+        shown = self.heatmap.set_visible(visible)
+        if visible and not shown:
+            self.show_status("Open a shape first: the heat map colours the target.")
+        self.act_heatmap.setChecked(self.heatmap.visible)
+        return shown
+
+    def refit_selection(self, indices: list[int] | None = None) -> bool:
+        """Refit the selected primitives (or `indices`) in the background, the others held
+        exactly as they are; one undo step when it is applied."""
+        if indices is None:
+            indices = [] if self.doc.selection is None else [self.doc.selection]
+        if not indices:
+            self.show_status("Select the primitives to refit first.")
+            return False
+        locked = [self.doc.primitive(i).name for i in indices if self.doc.primitive(i).locked]
+        if locked:
+            self.show_status(f"{locked[0]} is locked: unlock it to refit it.")
+            return False
+        return self.start_fit(self.fit_panel.values(), refit=sorted(indices))
+
     def set_shape_visible(self, visible: bool) -> None:
         self.scene.set_shape_visible(visible)
         for w in (self.act_show_shape, self.shape_check):
@@ -842,8 +883,9 @@ class MainWindow(QMainWindow):
         self.metrics_label.setText(text + ("  …" if busy else ""))
 
     # -- fitting --------------------------------------------------------------------------
-    def start_fit(self, values: dict[str, Any]) -> bool:
+    def start_fit(self, values: dict[str, Any], refit: list[int] | None = None) -> bool:
         """Start a background fit with the fit panel's values; False if it cannot start.
+        refit: indices of primitives to refit with all the others fixed, instead.
 
         Nothing here imports torch: the fit thread loads the fitting code itself (or waits
         for the preload that started with the window) and reports a bad setting or
@@ -855,11 +897,15 @@ class MainWindow(QMainWindow):
             return False
         self._fit_values = dict(values)
         self._fit_preview: Abstraction | None = None
-        self._fit_locked = [p.copy() for p in self.doc.primitives if p.locked]
+        # A refit's result holds every primitive (the fixed ones as exact copies).
+        self._fit_locked = ([] if refit is not None
+                            else [p.copy() for p in self.doc.primitives if p.locked])
         self.stack.close_merge()
         # load_fit_api is looked up now, so that tests can substitute a stand-in.
+        load_api = (load_fit_api if refit is None
+                    else refit_loader([p.copy() for p in self.doc.primitives], list(refit)))
         thread = FitThread(self.doc.shape, dict(values), self._fit_locked, parent=self,
-                           load_api=load_fit_api)
+                           load_api=load_api)
         thread.note.connect(self._on_fit_note)
         thread.progress.connect(self._on_fit_progress)
         thread.done.connect(self._on_fit_done)
@@ -996,6 +1042,7 @@ class MainWindow(QMainWindow):
             step_job.cancel()
             step_job.wait()
         self.metrics.shutdown()
+        self.heatmap.close()
         self.autosave.shutdown()  # a clean exit leaves no recovery file
         self.plotter.close()
         event.accept()

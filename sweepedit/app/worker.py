@@ -130,6 +130,25 @@ def load_fit_api() -> tuple[Callable[..., Any], type]:
         return _fit_api
 
 
+def refit_loader(primitives: list[SweepPrimitive], selected: list[int]
+                 ) -> Callable[[], tuple[Callable[..., Any], type]]:
+    """A load_api for FitThread that refits `selected` (indices into `primitives`) with
+    the others fixed (sweepedit.fitting.refit); imported in the worker thread, as the fit
+    is."""
+    def load() -> tuple[Callable[..., Any], type]:
+        _, settings_type = load_fit_api()
+        from sweepedit.fitting.refit import refit_selection
+
+        def run(shape: Any, settings: Any, *, locked: Any = (), callback: Any = None,
+                cancel: Any = None) -> Any:
+            return refit_selection(shape, primitives, selected, settings, callback=callback,
+                                   cancel=cancel)
+
+        return run, settings_type
+
+    return load
+
+
 def fit_api_ready() -> bool:
     """Whether load_fit_api would return at once."""
     return _fit_api is not None

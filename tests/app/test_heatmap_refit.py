@@ -1,0 +1,169 @@
+"""Issue 16 in a real window under Xvfb: the heat map of the error (View menu, colour bar,
+colours against independently computed distances, background refresh), refit of a
+selection (the others unchanged to the bit), and one render per mouse move."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sweepedit.geometry.model import Abstraction, SweepPrimitive, palette_color
+
+pytestmark = pytest.mark.gui
+
+
+@pytest.fixture
+def sphere_files(tmp_path: Path) -> dict[str, Path]:
+    """A sphere (radius 0.5 once normalised) and a cylinder along x through it that
+    misses its sides and sticks out of it at both ends, plus a small second primitive."""
+    trimesh = pytest.importorskip("trimesh")
+    from sweepedit.io.params import write_abstraction
+
+    shape = tmp_path / "sphere.obj"
+    trimesh.creation.icosphere(subdivisions=3, radius=1.0).export(shape)
+    params = tmp_path / "sphere.json"
+    write_abstraction(Abstraction([
+        SweepPrimitive(control_points=[[-0.6, 0, 0], [0, 0, 0], [0.6, 0, 0]], a=0.3, b=0.3,
+                       degree=2.0, name="barrel", color=palette_color(0)),
+        SweepPrimitive(control_points=[[0, 0.1, 0.2], [0, 0.2, 0.3], [0, 0.3, 0.35]],
+                       a=0.05, b=0.05, degree=2.0, name="knob", color=palette_color(1)),
+    ]), params)
+    return {"shape": shape, "params": params}
+
+
+def exact_signed_distance(points: np.ndarray, prims: list[SweepPrimitive]) -> np.ndarray:
+    """Independent truth: trimesh's point-triangle distance to the exact solid union
+    (manifold3d), signed by the exact inside test."""
+    import trimesh
+
+    from sweepedit.geometry.inside import inside_union
+    from sweepedit.geometry.solid import solid_union
+
+    union = solid_union(prims, 128, 96)
+    _, unsigned, _ = trimesh.proximity.closest_point(
+        trimesh.Trimesh(union.vertices, union.faces, process=False), points)
+    return np.where(inside_union(points, prims), -unsigned, unsigned)
+
+
+def test_heat_map_toggles_with_a_colour_bar_and_colours_the_true_distances(
+        qtbot, window, sphere_files) -> None:
+    assert window.open_path(sphere_files["shape"])
+    assert window.open_path(sphere_files["params"])
+    view = window.heatmap
+    assert not view.scalar_bar.GetVisibility()
+    assert window.act_heatmap in window.view_menu.actions()
+    window.act_heatmap.trigger()  # View > Heat map of the error
+    assert view.visible and view.scalar_bar.GetVisibility()
+    assert not window.scene.shape_visible  # the coloured target replaces the grey one
+    qtbot.waitUntil(lambda: view.last_distance is not None and not view.running,
+                    timeout=60000)
+    poly = view._poly
+    truth = exact_signed_distance(np.array(poly.points), window.doc.primitives)
+    shown = np.array(poly.point_data["distance"])
+    # The colours the actor shows: the lookup table over the shown range.
+    lut = view._actor.GetMapper().GetLookupTable()
+    lo, hi = view._actor.GetMapper().GetScalarRange()
+    assert lo == -hi and hi == view.half_range
+    def rgb(value: float) -> list[float]:
+        out = [0.0, 0.0, 0.0]
+        lut.GetColor(float(value), out)
+        return out
+
+    colours = np.array([rgb(v) for v in shown])
+    expected = np.array([rgb(v) for v in np.clip(truth, lo, hi)])
+    assert np.abs(colours - expected).max() < 0.05
+    # Both kinds of error are on this target: the barrel misses the sphere's sides (red)
+    # and buries it at both ends (blue).
+    assert (truth > 0.05).any() and (truth < -0.05).any()
+    assert np.array_equal(shown > 0, truth > 0)
+
+    # An edit recomputes it in the background.
+    before = view.last_distance
+    window.doc.select(0)
+    assert window.scene.drag_control_point(0, 1, [0.0, 0.15, 0.0])
+    window.scene.end_drag()
+    qtbot.waitUntil(lambda: view.last_distance is not before and not view.running,
+                    timeout=60000)
+    assert not np.array_equal(view.last_distance, before)
+
+    window.act_heatmap.trigger()  # off again
+    assert not view.visible and not view.scalar_bar.GetVisibility()
+    assert window.scene.shape_visible
+    window.stack.undo()
+    assert not view.running  # no longer listening to the document
+
+
+def test_heat_map_needs_a_shape_and_closes_cleanly(qtbot, window) -> None:
+    assert not window.set_heatmap_visible(True)
+    assert not window.act_heatmap.isChecked()
+    window.heatmap.close()
+    assert not window.heatmap.set_visible(True)
+
+
+def test_refit_selection_changes_only_the_selected_primitive(qtbot, window,
+                                                             sphere_files) -> None:
+    assert window.open_path(sphere_files["shape"])
+    assert window.open_path(sphere_files["params"])
+    before = [p.copy() for p in window.doc.primitives]
+    window.fit_panel.refine_iterations.setValue(20)
+    window.doc.select(1)
+    assert window.act_refit.isEnabled()
+    from PySide6.QtCore import Qt
+
+    qtbot.mouseClick(window.fit_panel.refit_button, Qt.MouseButton.LeftButton)
+    assert window.fitting
+    qtbot.waitUntil(lambda: not window.fitting, timeout=180000)
+    assert window.errors == []
+    after = window.doc.primitives
+    assert len(after) == 2
+    kept, refit = after[0], after[1]
+    assert kept.control_points.tobytes() == before[0].control_points.tobytes()
+    assert (kept.a, kept.b, kept.degree, kept.scaling, kept.name, kept.color) == (
+        before[0].a, before[0].b, before[0].degree, before[0].scaling, before[0].name,
+        before[0].color)
+    assert refit.name == "knob"
+    assert not np.array_equal(refit.control_points, before[1].control_points)
+    window.stack.undo()  # one step back to the start
+    assert window.doc.primitive(1).control_points.tobytes() == \
+        before[1].control_points.tobytes()
+
+
+def test_refit_refuses_nothing_selected_and_locked(qtbot, window, sphere_files) -> None:
+    assert window.open_path(sphere_files["shape"])
+    assert window.open_path(sphere_files["params"])
+    assert not window.refit_selection()
+    window.doc.primitive(0).locked = True
+    assert not window.refit_selection([0])
+    assert not window.fitting
+
+
+def test_a_mouse_move_renders_exactly_once(qtbot, window, sphere_files) -> None:
+    from PySide6.QtCore import QPoint, Qt
+
+    assert window.open_path(sphere_files["shape"])
+    assert window.open_path(sphere_files["params"])
+    window.doc.select(0)
+    qtbot.wait(100)
+    plotter = window.plotter
+    renders: list[int] = []
+    tag = plotter.render_window.AddObserver("EndEvent", lambda *_: renders.append(1))
+    try:
+        ratio = plotter.devicePixelRatioF()
+        d = window.scene.world_to_display(window.doc.primitive(0).control_points[1:2])[0]
+        start = QPoint(round(d[0] / ratio), round(plotter.height() - 1 - d[1] / ratio))
+        qtbot.mousePress(plotter, Qt.MouseButton.LeftButton, pos=start)
+        assert window.scene.dragging
+        qtbot.wait(50)
+        counts = []
+        for k in range(1, 9):
+            renders.clear()
+            qtbot.mouseMove(plotter, start + QPoint(4 * k, -3 * k))
+            qtbot.wait(40)  # the paint that follows the move, and anything after it
+            counts.append(len(renders))
+        qtbot.mouseRelease(plotter, Qt.MouseButton.LeftButton, pos=start + QPoint(32, -24))
+    finally:
+        plotter.render_window.RemoveObserver(tag)
+    assert counts == [1] * 8
+    assert len(window.stack) == 1
