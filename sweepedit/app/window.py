@@ -7,6 +7,7 @@ tests replace these two methods so that no modal dialog ever blocks them.
 
 from __future__ import annotations
 
+import atexit
 import copy
 import errno
 import time
@@ -81,6 +82,17 @@ _orphan_threads: list[FitThread] = []
 # fit's low-priority thread can need seconds to reach its next cancel check (measured:
 # 2-4 s with two CPU burners, in shape preparation); the user gets control in < 1 s.
 CANCEL_GRACE_MS = 400
+
+
+@atexit.register
+def _join_orphan_threads() -> None:
+    """At exit, let fits that were told to stop finish (their cancel is set): a QThread
+    destroyed while it runs aborts the process."""
+    for thread in _orphan_threads:
+        try:
+            thread.wait()
+        except RuntimeError:  # finished earlier and deleted (deleteLater)
+            pass
 
 HELP_TEXT = """<b>Mouse</b><br>
 Left-drag: rotate · Shift+left-drag or middle-drag: pan · wheel / right-drag: zoom<br>
