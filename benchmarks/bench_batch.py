@@ -131,12 +131,17 @@ def cluster_node_loss(shapes: list[ShapeInput], out: Path, spec: JobSpec) -> dic
 
 
 def _running_tasks() -> list[int]:
-    """PIDs of Ray workers executing a shape now (Ray titles them ray::run_job)."""
+    """PIDs of this session's Ray workers executing a shape now (Ray titles them
+    ray::run_job; their parent is a raylet of this session)."""
+    session = ray._private.worker._global_node.get_session_dir_path().encode()
     pids = []
     for entry in Path("/proc").iterdir():
         try:
-            if entry.name.isdigit() and (entry / "cmdline").read_bytes().startswith(
+            if not entry.name.isdigit() or not (entry / "cmdline").read_bytes().startswith(
                     b"ray::run_job"):
+                continue
+            parent = (entry / "stat").read_text().rsplit(")", 1)[1].split()[1]
+            if session in Path(f"/proc/{parent}/cmdline").read_bytes():
                 pids.append(int(entry.name))
         except OSError:
             continue

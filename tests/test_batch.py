@@ -196,15 +196,21 @@ def test_good_corrupt_and_empty_give_outputs_two_failed_rows_exit_1(
 
 
 def _task_pids(function: str = "run_job") -> list[int]:
-    """PIDs of Ray workers now executing `function` (Ray titles them ray::<function>)."""
+    """PIDs of this test's Ray workers now executing `function`: Ray titles them
+    ray::<function>, and their parent is a raylet of this session (never another job's)."""
+    session = ray._private.worker._global_node.get_session_dir_path().encode()
     pids = []
     for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if (entry / "cmdline").read_bytes().startswith(f"ray::{function}".encode()):
-                    pids.append(int(entry.name))
-            except OSError:
+        if not entry.name.isdigit():
+            continue
+        try:
+            if not (entry / "cmdline").read_bytes().startswith(f"ray::{function}".encode()):
                 continue
+            parent = (entry / "stat").read_text().rsplit(")", 1)[1].split()[1]
+            if session in Path(f"/proc/{parent}/cmdline").read_bytes():
+                pids.append(int(entry.name))
+        except OSError:
+            continue
     return pids
 
 

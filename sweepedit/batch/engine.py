@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import time
 from typing import Any
 
@@ -54,6 +55,20 @@ def machine_cores() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         return os.cpu_count() or 1
+
+
+def _check_reachable(address: str, timeout: float = 5.0) -> None:
+    """A HOST:PORT (or ray://HOST:PORT) that takes no connection is an error now, not
+    after Ray's own minutes of retrying; "auto" is left to Ray."""
+    target = address.removeprefix("ray://")
+    host, sep, port = target.rpartition(":")
+    if address == "auto" or not sep or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise SweepeditError(f"--address {address}: nothing answers there "
+                             f"({exc.strerror or exc})") from None
 
 
 class InProcessEngine:
@@ -124,6 +139,7 @@ class RayEngine:
                  "configure_logging": True}
         try:
             if address:
+                _check_reachable(address)
                 self._ray.init(address=address, **quiet)
             else:
                 count = workers or max(1, machine_cores() // self._cpus)
