@@ -402,12 +402,21 @@ def _cmd_train_sweeper(args: argparse.Namespace) -> int:
 
 def _cmd_gui(args: argparse.Namespace) -> int:
     from sweepedit.app.main import run_app, screenshot
+    from sweepedit.app.window import is_parameter_file
 
     if args.select is not None and not args.screenshot:
         raise SweepeditError("--select goes with --screenshot")
+    if len(args.files) > 2:
+        raise SweepeditError("gui takes at most two files: a shape and its parameters")
+    # The shape first, so that the parameters open onto it (and get metrics).
+    files = sorted(args.files, key=is_parameter_file)
+    first, also = [*files, None, None][:2]
     if args.screenshot:
-        return screenshot(args.file, args.screenshot, select=args.select)
-    return run_app(args.file, recover=args.recover)
+        if first is None:
+            raise SweepeditError("--screenshot needs a file to show")
+        return screenshot(first, args.screenshot, select=args.select, also=also,
+                          heatmap=args.heatmap)
+    return run_app(first, recover=args.recover, also=also, heatmap=args.heatmap)
 
 
 def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
@@ -571,7 +580,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_train_sweeper)
 
     p = sub.add_parser("gui", help="open the app on a file; --screenshot renders and quits")
-    p.add_argument("file", nargs="?", help="shape or parameter file")
+    p.add_argument("files", nargs="*", metavar="FILE",
+                   help="a shape, a parameter file, or both (SHAPE PARAMS)")
+    p.add_argument("--heatmap", action="store_true",
+                   help="show the heat map of the error: the shape coloured by its distance "
+                   "to the primitives (red missed, blue excess)")
     p.add_argument("--screenshot", metavar="PNG", help="write a screenshot and quit")
     p.add_argument("--select", type=int, metavar="N",
                    help="with --screenshot: show primitive N (from 0) selected, axis and handles")

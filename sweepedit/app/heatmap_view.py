@@ -31,7 +31,7 @@ from sweepedit.geometry.model import SweepPrimitive
 RANGE_QUANTILE = 0.98
 MIN_RANGE = 0.01
 DELAY_MS = 60  # edits pause this long before a recomputation starts
-PRIMITIVE_OPACITY = 0.35
+PRIMITIVE_OPACITY = 0.2
 TITLE = "distance\n+ missed\n- excess"
 
 

@@ -54,9 +54,11 @@ def _wait(app: QApplication, seconds: float, until: Callable[[], bool] | None = 
 RECOVER_ANSWERS = {"ask": None, "yes": True, "no": False}
 
 
-def run_app(path: str | None = None, recover: str = "ask") -> int:
-    """Open the editor on `path` (a shape or a parameter file), or on the bundled example
-    when no path is given; returns the application's exit code. Unsaved edits that an
+def run_app(path: str | None = None, recover: str = "ask", also: str | None = None,
+            heatmap: bool = False) -> int:
+    """Open the editor on `path` (a shape or a parameter file; `also` a second one, the
+    parameters for the shape), or on the bundled example when no path is given; `heatmap`
+    shows the heat map of the error. Returns the application's exit code. Unsaved edits that an
     editor killed or crashed left behind are offered first (`recover`: "ask", or "yes" /
     "no" to answer without asking); when they are recovered, `path` is not opened."""
     if recover not in RECOVER_ANSWERS:
@@ -77,7 +79,10 @@ def run_app(path: str | None = None, recover: str = "ask") -> int:
         if window.offer_recovery(RECOVER_ANSWERS[recover]):
             return
         if target is not None:
-            window.open_path(target)
+            if window.open_path(target) and also is not None:
+                window.open_path(also)
+            if heatmap:
+                window.set_heatmap_visible(True)
         else:
             window.show_status("No file given and no bundled example found: "
                                "open a shape with Ctrl+O.")
@@ -91,13 +96,16 @@ def run_app(path: str | None = None, recover: str = "ask") -> int:
 
 def screenshot(path_in: str, png_out: str, full_window: bool = True,
                size: tuple[int, int] = (1600, 1000), metrics_timeout_s: float = 20.0,
-               select: int | None = None) -> int:
-    """Open `path_in`, render, write a PNG of the window (or only the 3D view) to `png_out`
-    atomically and quit. `select`: the primitive (0-based) shown selected, with its axis
-    and handles. Returns 0 on success, 1 (with a message on stderr) on failure.
-    Without a display it re-runs itself under xvfb-run when that is installed."""
+               select: int | None = None, also: str | None = None,
+               heatmap: bool = False) -> int:
+    """Open `path_in` (and `also`, the parameters for a shape), render, write a PNG of the
+    window (or only the 3D view) to `png_out` atomically and quit. `select`: the primitive
+    (0-based) shown selected, with its axis and handles; `heatmap`: the heat map of the
+    error shown (waits for it). Returns 0 on success, 1 (with a message on stderr) on
+    failure. Without a display it re-runs itself under xvfb-run when that is installed."""
     if not has_display():
-        return _screenshot_under_xvfb(path_in, png_out, full_window, size, select)
+        return _screenshot_under_xvfb(path_in, png_out, full_window, size, select, also,
+                                      heatmap)
     app = _application()
     from sweepedit.app.window import MainWindow
 
@@ -109,6 +117,11 @@ def screenshot(path_in: str, png_out: str, full_window: bool = True,
     window.show()
     _wait(app, 0.3)
     ok = window.open_path(path_in)
+    if ok and also is not None:
+        ok = window.open_path(also)
+    if ok and heatmap and not window.set_heatmap_visible(True):
+        errors.append(f"{path_in}: the heat map needs a target shape (give SHAPE PARAMS)")
+        ok = False
     if ok and select is not None:
         if 0 <= select < len(window.doc):
             window.doc.select(select)
@@ -118,7 +131,8 @@ def screenshot(path_in: str, png_out: str, full_window: bool = True,
             ok = False
     if ok:
         window.scene.reset_camera()
-        _wait(app, metrics_timeout_s, until=lambda: not window.metrics.running)
+        _wait(app, metrics_timeout_s, until=lambda: not window.metrics.running
+              and not window.heatmap.running)
         _wait(app, 0.2)
         ok = window.save_screenshot(png_out, full_window=full_window)
     window.doc.set_dirty(False)
@@ -130,7 +144,8 @@ def screenshot(path_in: str, png_out: str, full_window: bool = True,
 
 
 def _screenshot_under_xvfb(path_in: str, png_out: str, full_window: bool,
-                           size: tuple[int, int], select: int | None) -> int:
+                           size: tuple[int, int], select: int | None,
+                           also: str | None = None, heatmap: bool = False) -> int:
     xvfb = shutil.which("xvfb-run")
     if xvfb is None:
         print("sweepedit: a screenshot needs a display; none is set and xvfb-run is not "
@@ -138,6 +153,6 @@ def _screenshot_under_xvfb(path_in: str, png_out: str, full_window: bool,
         return 2
     code = ("import sys; from sweepedit.app.main import screenshot; "
             f"sys.exit(screenshot({str(path_in)!r}, {str(png_out)!r}, {full_window!r}, "
-            f"{tuple(size)!r}, select={select!r}))")
+            f"{tuple(size)!r}, select={select!r}, also={also!r}, heatmap={heatmap!r}))")
     screen = f"-screen 0 {size[0] + 64}x{size[1] + 64}x24"
     return subprocess.call([xvfb, "-a", "-s", screen, sys.executable, "-c", code])

@@ -167,3 +167,34 @@ def test_a_mouse_move_renders_exactly_once(qtbot, window, sphere_files) -> None:
         plotter.render_window.RemoveObserver(tag)
     assert counts == [1] * 8
     assert len(window.stack) == 1
+
+
+def test_gui_screenshot_of_the_heat_map(qtbot, sphere_files, tmp_path: Path) -> None:
+    from PySide6.QtGui import QImage
+
+    from sweepedit.app.main import has_display, screenshot
+
+    if not has_display():
+        pytest.skip("needs a display (run under xvfb-run)")
+    out = tmp_path / "heat.png"
+    # As `sweepedit gui SHAPE PARAMS --heatmap --screenshot PNG` calls it.
+    assert screenshot(str(sphere_files["shape"]), str(out), full_window=False,
+                      size=(1400, 900), also=str(sphere_files["params"]), heatmap=True) == 0
+    image = QImage(str(out))
+    assert not image.isNull()
+    pixels = [image.pixelColor(x, y) for x in range(0, image.width(), 7)
+              for y in range(0, image.height(), 7)]
+    # Both ends of the diverging map are on screen: missed (red) and excess (blue).
+    assert any(c.red() > c.green() + 60 and c.red() > c.blue() + 60 for c in pixels)
+    assert any(c.blue() > c.red() + 30 and c.blue() > c.green() + 20 for c in pixels)
+    # A parameter file alone (no shape beside it) has no target to colour: an error.
+    assert screenshot(str(sphere_files["params"]), str(tmp_path / "no.png"),
+                      size=(900, 600), heatmap=True) == 1
+
+
+def test_gui_command_takes_at_most_two_files(capsys) -> None:
+    from sweepedit.cli import main
+
+    assert main(["gui", "a.obj", "b.json", "c.json", "--screenshot", "x.png"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "at most two files" in err[0]
