@@ -15,7 +15,15 @@ from typing import Any
 
 import numpy as np
 
-from sweepedit.app.document import EDITABLE_FIELDS, Document, Signal, ensure_distinct_colors
+from sweepedit.app.document import (
+    EDITABLE_FIELDS,
+    GEOMETRY_FIELDS,
+    Document,
+    Signal,
+    ensure_distinct_colors,
+)
+from sweepedit.errors import InvalidPrimitiveError
+from sweepedit.geometry import axis_edit
 from sweepedit.geometry.model import SweepPrimitive, palette_color
 
 
@@ -199,6 +207,131 @@ class ReplacePrimitives(Command):
         doc.replace_primitives([p.copy() for p in self.old], copy.deepcopy(self.old_fit))
 
 
+class SetGeometry(Command):
+    """Replace one primitive's axis (any number of control points) and geometry fields
+    (a, b, degree, scaling) at once: inserting or deleting a control point."""
+
+    def __init__(self, index: int, control_points: np.ndarray, values: dict[str, Any],
+                 text: str = "Edit axis", merge_key: Hashable | None = None) -> None:
+        unknown = set(values) - GEOMETRY_FIELDS
+        if unknown:
+            raise KeyError(f"not geometry fields: {sorted(unknown)}")
+        self.index = index
+        self.new_points = np.array(control_points, dtype=np.float64, copy=True)
+        self.new = copy.deepcopy(dict(values))
+        self.old_points: np.ndarray | None = None
+        self.old: dict[str, Any] = {}
+        self.text = text
+        self.merge_key = merge_key
+
+    def check(self, doc: Document) -> None:
+        candidate = doc.primitive(self.index).copy()
+        candidate.control_points = self.new_points
+        for name, value in self.new.items():
+            setattr(candidate, name, value)
+        candidate.__post_init__()
+        candidate.validate(self.index)
+
+    def redo(self, doc: Document) -> None:
+        if self.old_points is None:
+            prim = doc.primitive(self.index)
+            self.old_points = prim.control_points.copy()
+            self.old = {name: copy.deepcopy(getattr(prim, name)) for name in self.new}
+        doc.set_geometry(self.index, self.new_points, self.new)
+
+    def undo(self, doc: Document) -> None:
+        assert self.old_points is not None
+        doc.set_geometry(self.index, self.old_points, self.old)
+
+    def merge(self, newer: Command) -> None:
+        assert isinstance(newer, SetGeometry)
+        self.new_points = newer.new_points
+        for name, value in newer.new.items():
+            self.old.setdefault(name, newer.old[name])
+            self.new[name] = value
+
+
+class MacroCommand(Command):
+    """Several commands as one undo step (an edit of a multi-selection, a symmetric
+    edit). The parts must not depend on each other's effects when checked (they edit
+    different primitives); they run in order and undo in reverse."""
+
+    def __init__(self, parts: Sequence[Command], text: str = "Edit",
+                 merge_key: Hashable | None = None) -> None:
+        if not parts:
+            raise ValueError("a macro needs at least one command")
+        self.parts = list(parts)
+        self.text = text
+        self.merge_key = merge_key
+
+    def check(self, doc: Document) -> None:
+        for part in self.parts:
+            part.check(doc)
+
+    def redo(self, doc: Document) -> None:
+        for part in self.parts:
+            part.redo(doc)
+
+    def undo(self, doc: Document) -> None:
+        for part in reversed(self.parts):
+            part.undo(doc)
+
+    def merge(self, newer: Command) -> None:
+        assert isinstance(newer, MacroCommand) and len(newer.parts) == len(self.parts)
+        for mine, theirs in zip(self.parts, newer.parts, strict=True):
+            mine.merge(theirs)
+
+
+class MirrorPrimitives(Command):
+    """Add mirrored copies of primitives (through a coordinate plane of the shape's
+    frame) after the last primitive, and select the copies."""
+
+    def __init__(self, copies: Sequence[SweepPrimitive], text: str = "Mirror") -> None:
+        self.copies = [p.copy() for p in copies]
+        self.text = text
+        self.start: int | None = None
+        self.previous: list[int] = []
+
+    def check(self, doc: Document) -> None:
+        for p in self.copies:
+            p.validate()
+
+    def redo(self, doc: Document) -> None:
+        self.previous = list(doc.selected_indices)
+        self.start = len(doc)
+        for p in self.copies:
+            doc.insert_primitive(len(doc), p.copy())
+        doc.set_selection(range(self.start, len(doc)))
+
+    def undo(self, doc: Document) -> None:
+        assert self.start is not None
+        for i in reversed(range(self.start, self.start + len(self.copies))):
+            doc.remove_primitive(i)
+        doc.set_selection(self.previous)
+
+
+class DeletePrimitives(Command):
+    """Remove several primitives in one step; undo puts the very same values back at the
+    same indices and restores the selection."""
+
+    def __init__(self, indices: Sequence[int], text: str = "Delete primitives") -> None:
+        self.indices = sorted(set(int(i) for i in indices))
+        self.text = text
+        self.removed: list[SweepPrimitive] = []
+        self.previous: list[int] = []
+
+    def redo(self, doc: Document) -> None:
+        self.previous = list(doc.selected_indices)
+        self.removed = [doc.remove_primitive(i) for i in reversed(self.indices)][::-1]
+        if len(doc):
+            doc.select(min(self.indices[0], len(doc) - 1))
+
+    def undo(self, doc: Document) -> None:
+        for i, prim in zip(self.indices, self.removed, strict=True):
+            doc.insert_primitive(i, prim.copy())
+        doc.set_selection(self.previous)
+
+
 class CommandStack:
     """Undo/redo history of one Document, with merging and a clean (saved) mark.
 
@@ -212,6 +345,8 @@ class CommandStack:
         self._redo: list[Command] = []
         self._clean: int | None = 0  # len(_undo) when saved; None: unreachable
         self._merge_open = False
+        # Symmetric editing: an edit of one of a mirrored pair is made to both (one step).
+        self.symmetric = False
         self.changed = Signal()
 
     # -- state ----------------------------------------------------------------------------
@@ -241,7 +376,11 @@ class CommandStack:
     # -- operations -----------------------------------------------------------------------
     def push(self, command: Command) -> None:
         """Execute `command` and record it (merged into the previous one when they share
-        a merge key and the gesture is still going on). Raises what check() raises."""
+        a merge key and the gesture is still going on). Raises what check() raises.
+        With `symmetric` on, the mirror partners of the primitives it edits get the
+        mirrored edit in the same step (with_mirror_partners)."""
+        if self.symmetric:
+            command = with_mirror_partners(self.doc, command)
         command.check(self.doc)
         top = self._undo[-1] if self._undo else None
         merging = (self._merge_open and top is not None and command.merge_key is not None
@@ -266,6 +405,20 @@ class CommandStack:
     def close_merge(self) -> None:
         """End the current gesture: the next command starts a new undo step."""
         self._merge_open = False
+
+    def revert_open(self) -> bool:
+        """Cancel the gesture going on (Esc during a drag): undo its merged step, which
+        restores the exact old values, and forget it (it cannot be redone). False when
+        no gesture is open."""
+        if not self._merge_open or not self._undo:
+            self._merge_open = False
+            return False
+        self._merge_open = False
+        self._undo.pop().undo(self.doc)
+        if self._clean is not None and self._clean > len(self._undo):
+            self._clean = None
+        self._changed()
+        return True
 
     def undo(self) -> None:
         self._merge_open = False
@@ -396,3 +549,126 @@ def apply_fit(doc: Document, primitives: Sequence[SweepPrimitive],
     prims = [p.copy() for p in primitives]
     ensure_distinct_colors(prims)
     return ReplacePrimitives(prims, fit=fit, text="Apply fit")
+
+
+# -- multi-selection, control points, mirroring ------------------------------------------------
+
+def transform_primitives(doc: Document, indices: Sequence[int], matrix: np.ndarray,
+                         text: str = "Transform primitives",
+                         profile_scale: float = 1.0) -> Command:
+    """transform_primitive for each of `indices` (locked ones skipped) as one undo step.
+    Raises InvalidPrimitiveError when all of them are locked."""
+    unlocked = [i for i in indices if not doc.primitive(i).locked]
+    if not unlocked:
+        raise InvalidPrimitiveError("the selected primitives are locked: unlock them first")
+    parts = [transform_primitive(doc, i, matrix, text=text, profile_scale=profile_scale)
+             for i in unlocked]
+    return parts[0] if len(parts) == 1 else MacroCommand(parts, text=text)
+
+
+def set_field_many(doc: Document, indices: Sequence[int], name: str, value: Any) -> Command:
+    """Set one field (hide, lock, ...) of several primitives as one undo step."""
+    parts: list[Command] = [set_field(doc, i, name, value, merge=False) for i in indices]
+    return parts[0] if len(parts) == 1 else MacroCommand(parts, text=f"Set {name}")
+
+
+def selection_pivot(doc: Document, indices: Sequence[int]) -> np.ndarray:
+    """(3,) the centroid of the control points of the given primitives (the origin when
+    none): the pivot for rotating or scaling a multi-selection."""
+    if not indices:
+        return np.zeros(3)
+    return np.concatenate([doc.primitive(i).control_points for i in indices]).mean(axis=0)
+
+
+def insert_control_point(doc: Document, index: int, t: float | None = None) -> SetGeometry:
+    """Insert a control point into primitive `index`'s axis at parameter t (the clicked
+    point; None: split its longest leg). 3 -> 4 is exact; see geometry.axis_edit."""
+    prim = doc.primitive(index)
+    if prim.locked:
+        raise InvalidPrimitiveError(f"{prim.name or 'the primitive'} is locked: unlock it "
+                                    "to add control points", primitive=index)
+    try:
+        new = axis_edit.insert_control_point(prim, t)
+    except ValueError as exc:
+        raise InvalidPrimitiveError(f"cannot add a control point here: {exc}",
+                                    primitive=index, field="control_points") from exc
+    return SetGeometry(index, new.control_points, {"scaling": new.scaling},
+                       text="Insert control point")
+
+
+def delete_control_point(doc: Document, index: int, cp_index: int) -> SetGeometry:
+    """Delete control point `cp_index` of primitive `index` (at least 3 stay)."""
+    prim = doc.primitive(index)
+    if prim.locked:
+        raise InvalidPrimitiveError(f"{prim.name or 'the primitive'} is locked: unlock it "
+                                    "to delete control points", primitive=index)
+    try:
+        new = axis_edit.delete_control_point(prim, cp_index)
+    except (ValueError, IndexError) as exc:
+        raise InvalidPrimitiveError(f"cannot delete this control point: {exc}",
+                                    primitive=index, field="control_points") from exc
+    return SetGeometry(index, new.control_points, {"scaling": new.scaling},
+                       text="Delete control point")
+
+
+def mirror_selection(doc: Document, indices: Sequence[int], axis: int | str) -> MirrorPrimitives:
+    """Mirrored copies of primitives `indices` through the x, y or z plane of the shape's
+    frame (exact: that coordinate negated), named '<name> mirror X', unlocked."""
+    a = axis_edit.axis_index(axis)
+    letter = "XYZ"[a]
+    copies = []
+    for k, i in enumerate(indices):
+        prim = axis_edit.mirror_primitive(doc.primitive(i), a)
+        prim.name = f"{prim.name or 'primitive'} mirror {letter}"
+        prim.color = palette_color(len(doc) + k)
+        prim.locked = False
+        copies.append(prim)
+    if not copies:
+        raise InvalidPrimitiveError("select the primitives to mirror first")
+    return MirrorPrimitives(copies, text=f"Mirror {letter}")
+
+
+def mirror_partners(doc: Document, index: int) -> list[tuple[int, int]]:
+    """(j, axis) for every other primitive that is primitive `index` mirrored through
+    the plane of `axis` (its geometry, to 1e-9)."""
+    prim = doc.primitive(index)
+    return [(j, a) for j, other in enumerate(doc.primitives) if j != index
+            for a in range(3) if axis_edit.is_mirror_pair(prim, other, a)]
+
+
+def _mirrored_part(command: Command, partner: int, axis: int) -> Command | None:
+    """The edit of `command` (one primitive's geometry) mirrored onto `partner`."""
+    if isinstance(command, SetControlPoints):
+        return SetControlPoints(partner, axis_edit.mirror_points(command.new, axis),
+                                text=command.text, profile=dict(command.new_profile))
+    if isinstance(command, SetGeometry):
+        return SetGeometry(partner, axis_edit.mirror_points(command.new_points, axis),
+                           dict(command.new), text=command.text)
+    if isinstance(command, SetFields):
+        geometry = {k: v for k, v in command.new.items() if k in GEOMETRY_FIELDS}
+        return SetFields(partner, geometry, text=command.text) if geometry else None
+    return None
+
+
+def with_mirror_partners(doc: Document, command: Command) -> Command:
+    """`command` plus, for each primitive whose geometry it edits, the mirrored edit of
+    its mirror partners (found on the document before the edit) that the command does
+    not edit itself: a mirrored pair stays exactly mirrored. One undo step; the merge
+    key is kept (with the partner set), so a symmetric drag still merges."""
+    parts = command.parts if isinstance(command, MacroCommand) else [command]
+    edited = {p.index for p in parts if isinstance(p, SetControlPoints | SetGeometry | SetFields)}
+    extra: list[Command] = []
+    for part in parts:
+        if not isinstance(part, SetControlPoints | SetGeometry | SetFields):
+            continue
+        for j, axis in mirror_partners(doc, part.index):
+            if j in edited:
+                continue
+            mirrored = _mirrored_part(part, j, axis)
+            if mirrored is not None:
+                extra.append(mirrored)
+                edited.add(j)
+    if not extra:
+        return command
+    key = None if command.merge_key is None else ("symmetric", command.merge_key, len(extra))
+    return MacroCommand([*parts, *extra], text=command.text, merge_key=key)

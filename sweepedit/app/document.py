@@ -113,7 +113,8 @@ class Document:
     Signals:
       primitive_changed(index, kind): one primitive changed; kind is GEOMETRY, DISPLAY or META
       primitives_reset(): primitives added, removed or replaced (indices may have moved)
-      selection_changed(index | None)
+      selection_changed(index | None): the primary selection (`selection`) or the set of
+        selected primitives (`selected_indices`, the primary among them) changed
       shape_changed(): target shape loaded or cleared
       path_changed(): parameter or shape file path changed
       dirty_changed(bool)
@@ -131,7 +132,9 @@ class Document:
         # hand-made primitives carry none): a shape opened later lends its frame then.
         self.frame_known = False
         self.dirty = False
-        self.selection: int | None = None
+        self.selection: int | None = None  # the primary selection (the panels show it)
+        # Every selected primitive, in the order selected, the primary last (multi-select).
+        self.selected_indices: list[int] = []
         self.primitive_changed = Signal()
         self.primitives_reset = Signal()
         self.selection_changed = Signal()
@@ -187,6 +190,7 @@ class Document:
         self.frame_known = bool(frame_known)
         self.path = Path(path) if path is not None else None
         self.selection = None
+        self.selected_indices = []
         self.primitives_reset.emit()
         self.selection_changed.emit(None)
         self.path_changed.emit()
@@ -219,11 +223,39 @@ class Document:
             self.dirty_changed.emit(dirty)
 
     def select(self, index: int | None) -> None:
+        """Select one primitive (or none): the primary and the only one selected."""
         if index is not None and not 0 <= index < len(self):
             index = None
-        if index != self.selection:
-            self.selection = index
-            self.selection_changed.emit(index)
+        self.set_selection([] if index is None else [index])
+
+    def set_selection(self, indices: Iterable[int], primary: int | None = None) -> None:
+        """Select several primitives; `primary` (default: the last of `indices`) is the one
+        the panels show and whose handles the scene draws. Invalid indices are dropped."""
+        chosen: list[int] = []
+        for i in indices:
+            if 0 <= int(i) < len(self) and int(i) not in chosen:
+                chosen.append(int(i))
+        if primary is not None and primary in chosen:
+            chosen.remove(primary)
+            chosen.append(primary)
+        self._set_selection_state(chosen)
+
+    def _set_selection_state(self, chosen: list[int], emit_always: bool = False) -> None:
+        primary = chosen[-1] if chosen else None
+        changed = chosen != self.selected_indices or primary != self.selection
+        self.selected_indices = chosen
+        self.selection = primary
+        if changed or emit_always:
+            self.selection_changed.emit(primary)
+
+    def _remap_selection(self, new_index: Callable[[int], int | None]) -> bool:
+        """Move the selection after primitives moved (new_index: old -> new or None when
+        gone); True when the primary changed."""
+        old = self.selection
+        chosen = [j for j in (new_index(i) for i in self.selected_indices) if j is not None]
+        self.selected_indices = chosen
+        self.selection = chosen[-1] if chosen else None
+        return old != self.selection
 
     # -- mutators used by commands --------------------------------------------------------
     def set_control_points(self, index: int, control_points: np.ndarray,
@@ -237,6 +269,21 @@ class Document:
             if name not in ("a", "b"):
                 raise KeyError(f"'{name}' is not a profile half-axis")
             setattr(prim, name, float(value))
+        self.primitive_changed.emit(index, GEOMETRY)
+        self.edited.emit()
+
+    def set_geometry(self, index: int, control_points: np.ndarray,
+                     values: dict[str, Any]) -> None:
+        """Replace one primitive's control points (any count n >= 3, (n, 3)) and geometry
+        fields (a, b, degree, scaling) in one change: one re-sweep, one notification."""
+        unknown = set(values) - GEOMETRY_FIELDS
+        if unknown:
+            raise KeyError(f"not geometry fields: {sorted(unknown)}")
+        prim = self.abstraction.primitives[index]
+        prim.control_points = np.array(control_points, dtype=np.float64, copy=True)
+        for name, value in values.items():
+            setattr(prim, name, tuple(float(s) for s in value) if name == "scaling"
+                    else float(value))
         self.primitive_changed.emit(index, GEOMETRY)
         self.edited.emit()
 
@@ -266,21 +313,16 @@ class Document:
         primitive.name = unique_name(primitive.name or self.next_primitive_name(),
                                      self.names())
         self.abstraction.primitives.insert(index, primitive)
-        if self.selection is not None and self.selection >= index:
-            self.selection += 1
+        self._remap_selection(lambda i: i + 1 if i >= index else i)
         self.primitives_reset.emit()
         self.edited.emit()
 
     def remove_primitive(self, index: int) -> SweepPrimitive:
         prim = self.abstraction.primitives.pop(index)
-        old = self.selection
-        if self.selection is not None:
-            if self.selection == index:
-                self.selection = None
-            elif self.selection > index:
-                self.selection -= 1
+        was = list(self.selected_indices)
+        self._remap_selection(lambda i: None if i == index else i - 1 if i > index else i)
         self.primitives_reset.emit()
-        if old != self.selection:
+        if index in was:
             self.selection_changed.emit(self.selection)
         self.edited.emit()
         return prim
@@ -291,10 +333,10 @@ class Document:
         self.abstraction.primitives = list(primitives)
         ensure_unique_names(self.abstraction.primitives)
         self.abstraction.fit = fit
-        old = self.selection
-        if self.selection is not None and self.selection >= len(self):
-            self.selection = None
+        n = len(self)
+        was = list(self.selected_indices)
+        self._remap_selection(lambda i: i if i < n else None)
         self.primitives_reset.emit()
-        if old != self.selection:
+        if was != self.selected_indices:
             self.selection_changed.emit(self.selection)
         self.edited.emit()
