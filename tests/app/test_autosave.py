@@ -141,7 +141,6 @@ def _recovery_story(make, small_files) -> None:
     first.stack.push(move_control_point(first.doc, 0, 1, [0.0123456789, -0.1, 0.05]))
     first.stack.push(set_field(first.doc, 1, "name", "crossbar", merge=False))
     first.stack.push(set_field(first.doc, 1, "degree", 3.3, merge=False))
-    autosaved = first.doc.abstraction.copy()
     left = _crash(first, lambda: first.stack.push(set_field(first.doc, 1, "a", 0.05,
                                                              merge=False)))
     assert left.is_file()
@@ -173,21 +172,6 @@ def _recovery_story(make, small_files) -> None:
     _same(third.doc.abstraction, saved_state)
     third.doc.set_dirty(False)
     third.close()
-
-    # The crash of `first` with its own edits, recovered the same way.
-    fourth = make()
-    fourth.open_path(small_files["obj"])
-    fourth.open_path(small_files["json"])
-    fourth.stack.push(move_control_point(fourth.doc, 0, 1, [0.0123456789, -0.1, 0.05]))
-    fourth.stack.push(set_field(fourth.doc, 1, "name", "crossbar", merge=False))
-    fourth.stack.push(set_field(fourth.doc, 1, "degree", 3.3, merge=False))
-    _crash(fourth)
-    fifth = make()
-    assert fifth.offer_recovery(True)
-    _same(fifth.doc.abstraction, autosaved)
-    assert fifth.doc.primitive(1).name == "crossbar"
-    fifth.doc.set_dirty(False)
-    fifth.close()
 
 
 @pytest.mark.gui
