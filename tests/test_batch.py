@@ -8,6 +8,7 @@ about the job around the fit, not its quality.
 from __future__ import annotations
 
 import csv
+import json
 import os
 import signal
 import subprocess
@@ -128,6 +129,8 @@ def test_usage_errors_exit_2(tmp_path: Path, capsys) -> None:
     file_out.write_text("x")
     assert main(["batch", str(CACTUS), "-o", str(file_out), *FAST]) == 2
     assert main(["batch", str(CACTUS), "-o", str(tmp_path / "o"), "-k", "0"]) == 2
+    assert main(["batch", str(CACTUS), "-o", str(tmp_path / "o"), "--gpus-per-task", "-1"]) == 2
+    assert "GPUs per task" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
         main(["batch", str(CACTUS), "-o", str(tmp_path / "o"), "--workers", "0"])
     assert exc.value.code == 2
@@ -171,8 +174,7 @@ def test_good_corrupt_and_empty_give_outputs_two_failed_rows_exit_1(
     (folder / "corrupt.obj").write_text("v 1 2 3\nf 1 2 zz\n")
     (folder / "empty.off").write_text("OFF\n0 0 0\n")
     out = tmp_path / "out"
-    args = [x for x in FAST if x != "--no-sheet"]
-    assert main(["batch", str(folder), "-o", str(out), *args]) == 1
+    assert main(["batch", str(folder), "-o", str(out), *FAST]) == 1
     rows = _rows(out)
     assert {k: r["status"] for k, r in rows.items()} == {
         "capsule": "ok", "cactus": "ok", "corrupt": "failed", "empty": "failed"}
@@ -192,7 +194,22 @@ def test_good_corrupt_and_empty_give_outputs_two_failed_rows_exit_1(
     # A capsule is one sweep: even this tiny fit covers most of it.
     assert float(rows["capsule"]["iou"]) > 0.5
     assert (out / "summary.md").read_text().count("error:") == 2
-    assert (out / "contact_sheet.png").stat().st_size > 0
+
+
+def test_bench_is_batch_plus_the_table(tmp_path: Path, local_ray, capsys) -> None:
+    folder = tmp_path / "set"
+    folder.mkdir()
+    _capsule(folder / "capsule.stl")
+    out = tmp_path / "bench" / "bench.md"
+    fast = [x for x in FAST if x not in ("--no-sheet", "--quiet")]
+    assert main(["bench", "--shapes", str(folder), "--out", str(out), *fast]) == 0
+    table = out.read_text()
+    assert "| capsule |" in table and "| **median** |" in table and "| refinement |" in table
+    assert table in capsys.readouterr().out
+    assert json.loads(out.with_suffix(".json").read_text())["rows"][0]["shape"] == "capsule"
+    assert out.with_suffix(".png").stat().st_size > 0
+    abstraction = read_abstraction(out.parent / "params" / "capsule.json")
+    assert abstraction.fit["batch"]["node"]  # fitted through batch, on a Ray node
 
 
 def _task_pids(function: str = "run_job") -> list[int]:
@@ -247,8 +264,11 @@ def test_driver_sigkill_then_rerun_fits_only_the_missing(tmp_path: Path, local_r
     folder = tmp_path / "in"
     _good_shapes(folder, copies=2)  # capsule, cactus, cactus1
     out = tmp_path / "out"
+    # The driver joins this test's instance (--address: an existing cluster), as a
+    # second driver would; its shapes are its own job, its death ends them.
+    address = ray.get_runtime_context().gcs_address
     command = [sys.executable, "-m", "sweepedit.cli", "batch", str(folder), "-o", str(out),
-               "--workers", "1", *FAST]
+               "--address", address, "--workers", "1", *FAST]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     driver = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)

@@ -43,6 +43,18 @@ class JobSpec:
     threads: int = 1
     gpus: float = 0.0
 
+    def validate(self) -> None:
+        """The fit settings' own checks and the job's; SweepeditError names the option."""
+        self.settings.validate()
+        if self.mesh_format not in MESH_FORMATS:
+            raise SweepeditError(f"mesh format must be one of {', '.join(MESH_FORMATS)}")
+        if self.samples < 1:
+            raise SweepeditError("metric samples must be at least 1")
+        if self.threads < 1:
+            raise SweepeditError("CPUs per task must be at least 1")
+        if not self.gpus >= 0:  # NaN too
+            raise SweepeditError("GPUs per task must be 0 or more")
+
     def fingerprint(self) -> str:
         """A hash of everything that shapes a result: a rerun reuses a shape's outputs
         only when it is the same (different settings refit)."""

@@ -105,7 +105,7 @@ def run_batch(shapes: Sequence[ShapeInput], options: BatchOptions) -> BatchRepor
     outdir = Path(options.outdir)
     if outdir.exists() and not outdir.is_dir():
         raise SweepeditError(f"{outdir}: the output folder is a file")
-    options.spec.settings.validate()  # one error line before anything starts
+    options.spec.validate()  # one error line before anything starts
     outdir.mkdir(parents=True, exist_ok=True)
     results: dict[str, JobOutcome] = {}
     if options.resume:
