@@ -55,8 +55,10 @@ from sweepedit.app.commands import (
     CommandStack,
     affine_matrix,
     move_control_point,
+    selection_pivot,
     set_field,
-    transform_primitive,
+    set_field_many,
+    transform_primitives,
 )
 from sweepedit.app.document import DISPLAY, GEOMETRY, META, Document
 from sweepedit.app.worker import FitUpdate
@@ -157,7 +159,8 @@ class PrimitiveListPanel(QWidget):
         self.tree.setHeaderLabels(["Primitive", "Visible", "Locked"])
         self.tree.setRootIsDecorated(False)
         self.tree.setUniformRowHeights(True)
-        self.tree.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
+        # Ctrl/Shift-click and Ctrl+A select several (edits then act on all of them).
+        self.tree.setSelectionMode(QAbstractItemView.SelectionMode.ExtendedSelection)
         # Only the name column is edited (double-click); the check boxes toggle on click.
         self.tree.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         self.tree.itemDoubleClicked.connect(
@@ -218,13 +221,16 @@ class PrimitiveListPanel(QWidget):
                            else Qt.CheckState.Unchecked)
 
     def _select_row(self, index: int | None) -> None:
+        """Show the document's selection: every selected row, the primary current."""
         if index is None or index >= self.tree.topLevelItemCount():
             self.tree.clearSelection()
             self.tree.setCurrentItem(None)
             return
         item = self.tree.topLevelItem(index)
         self.tree.setCurrentItem(item)
-        item.setSelected(True)
+        chosen = set(self.doc.selected_indices) | {index}
+        for i in range(self.tree.topLevelItemCount()):
+            self.tree.topLevelItem(i).setSelected(i in chosen)
         self.tree.scrollToItem(item)
 
     def _on_primitive_changed(self, index: int, kind: str) -> None:
@@ -245,8 +251,10 @@ class PrimitiveListPanel(QWidget):
     def _on_tree_selection(self) -> None:
         if self._refreshing:
             return
-        items = self.tree.selectedItems()
-        self.doc.select(self.tree.indexOfTopLevelItem(items[0]) if items else None)
+        rows = sorted(self.tree.indexOfTopLevelItem(item) for item in self.tree.selectedItems())
+        current = self.tree.currentItem()
+        primary = self.tree.indexOfTopLevelItem(current) if current is not None else None
+        self.doc.set_selection(rows, primary=primary if primary in rows else None)
 
     def _on_item_changed(self, item: QTreeWidgetItem, column: int) -> None:
         if self._refreshing:
@@ -262,8 +270,12 @@ class PrimitiveListPanel(QWidget):
         elif column in (self.COL_VISIBLE, self.COL_LOCKED):
             field = "visible" if column == self.COL_VISIBLE else "locked"
             value = item.checkState(column) == Qt.CheckState.Checked
-            if value != getattr(prim, field):
-                self.editor.push(set_field(self.doc, index, field, value, merge=False))
+            # A box ticked on a selected row ticks it for the whole selection (one step).
+            rows = (self.doc.selected_indices if index in self.doc.selected_indices
+                    else [index])
+            rows = [i for i in rows if getattr(self.doc.primitive(i), field) != value]
+            if rows:
+                self.editor.push(set_field_many(self.doc, rows, field, value))
 
 
 # -- properties -----------------------------------------------------------------------------
@@ -622,9 +634,9 @@ class PropertiesPanel(QWidget):
             self.editor.push(set_field(self.doc, i, "color", color.name(), merge=False))
 
     def transform_matrix(self) -> np.ndarray:
-        """The 4x4 affine of the transform section, about the control points' centroid."""
-        i = self.doc.selection
-        pivot = self.doc.primitive(i).control_points.mean(axis=0) if i is not None else np.zeros(3)
+        """The 4x4 affine of the transform section, about the centroid of the selected
+        primitives' control points."""
+        pivot = selection_pivot(self.doc, self.doc.selected_indices)
         return affine_matrix([s.value() for s in self.translate_spins],
                              [s.value() for s in self.rotate_spins],
                              self.scale_spin.value(), pivot)
@@ -638,7 +650,9 @@ class PropertiesPanel(QWidget):
             return
         profile_scale = self.scale_spin.value() if self.scale_profile_check.isChecked() else 1.0
         self.stack.close_merge()
-        command = transform_primitive(self.doc, i, m, profile_scale=profile_scale)
+        # The whole selection (locked ones skipped) moves as one undo step.
+        command = transform_primitives(self.doc, self.doc.selected_indices, m,
+                                       profile_scale=profile_scale)
         try:
             self.stack.push(command)
         except SweepeditError as exc:

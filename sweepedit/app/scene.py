@@ -21,11 +21,17 @@ import numpy as np
 import pyvista as pv
 import vtk
 from PySide6.QtCore import QEvent, QObject, Qt
-from PySide6.QtGui import QColor
+from PySide6.QtGui import QAction, QColor
+from PySide6.QtWidgets import QMenu
 
-from sweepedit.app.commands import CommandStack, move_control_point
+from sweepedit.app.commands import (
+    CommandStack,
+    delete_control_point,
+    insert_control_point,
+    move_control_point,
+)
 from sweepedit.app.document import DISPLAY, GEOMETRY, Document
-from sweepedit.errors import InvalidPrimitiveError
+from sweepedit.errors import InvalidPrimitiveError, SweepeditError
 from sweepedit.geometry.mesher import TriangleMesh, sweep_mesh, sweep_meshes
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import axis_points
@@ -42,6 +48,19 @@ HANDLE_PIXELS = 16  # diameter on screen
 PICK_PIXELS = 11  # how close (in device pixels) a click must be to a handle
 AXIS_SAMPLES = 128
 CLICK_SLOP = 4  # pixels a press may move and still count as a click
+GRID_STEP = 0.01  # Ctrl-drag snaps the offset to this (normalised frame: the shape is ~1)
+AXIS_PICK_SAMPLES = 256
+# Camera presets (Blender's numpad views, z up): the direction from the focal point to
+# the camera, and the view-up vector.
+VIEW_PRESETS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    "front": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
+    "back": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "right": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    "left": ((-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    "top": ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
+    "bottom": ((0.0, 0.0, -1.0), (0.0, -1.0, 0.0)),
+    "isometric": ((1.0, 1.0, 1.0), (0.0, 0.0, 1.0)),
+}
 
 
 @dataclass
@@ -127,7 +146,13 @@ class SweepScene:
         self._drag: tuple[int, int] | None = None
         self._drag_depth = 0.0
         self._drag_offset = np.zeros(2)
+        self._drag_start = np.zeros(3)
+        # ("axis" | "plane", 0..2) while X/Y/Z (Shift+X/Y/Z) constrains a drag.
+        self._constraint: tuple[str, int] | None = None
+        self._drag_delta = np.zeros(3)
         self._handle_points = np.zeros((0, 3))
+        # Where refusals are told (the window's status bar); None: silently.
+        self.report: Any = None
 
         plotter.set_background(BACKGROUND)
         # Plain alpha blending for the translucent target (drawn front faces only): VTK's
@@ -185,6 +210,13 @@ class SweepScene:
         for actor in (self._polygon_actor, self._axis_actor, self._handles_actor):
             actor.VisibilityOff()
             overlay.AddActor(actor)
+        # The offset of a drag in progress (and its constraint), bottom left.
+        self._offset_actor = vtk.vtkTextActor()
+        self._offset_actor.GetTextProperty().SetFontSize(16)
+        self._offset_actor.GetTextProperty().SetColor(0.1, 0.1, 0.1)
+        self._offset_actor.SetPosition(12, 12)
+        self._offset_actor.VisibilityOff()
+        overlay.AddViewProp(self._offset_actor)
 
     def _before_render(self, *_: Any) -> None:
         main = self.plotter.renderer
@@ -300,7 +332,7 @@ class SweepScene:
         actor = self._actors[index].actor
         actor.GetProperty().SetColor(*_rgb(prim.color))
         actor.SetVisibility(bool(prim.visible))
-        selected = self._preview is None and index == self.doc.selection
+        selected = self._preview is None and index in self.doc.selected_indices
         # A lighter ambient term marks the selection without hiding its colour.
         actor.GetProperty().SetAmbient(0.35 if selected else 0.12)
 
@@ -476,24 +508,119 @@ class SweepScene:
         self._drag = (prim_index, cp_index)
         self._drag_depth = float(d[2])
         self._drag_offset = d[:2] - np.array([x, y])  # no jump to the cursor
+        self._drag_start = p.copy()
+        self._constraint = None
+        self._drag_delta = np.zeros(3)
         if self.stack is not None:
             self.stack.close_merge()
         self._update_overlay()
+        self._show_offset()
         self.request_render()
         return True
 
-    def drag_to(self, x: float, y: float) -> bool:
-        """Move the dragged handle under display point x, y, in the view plane."""
+    @property
+    def constraint(self) -> tuple[str, int] | None:
+        """("axis", i) or ("plane", i) (the plane normal to axis i) during a drag, or None."""
+        return self._constraint
+
+    def set_constraint(self, kind: str | None, axis: int = 0) -> None:
+        """Constrain the drag to an axis or to the plane normal to it; the same key again
+        (or kind None) frees it, as in Blender."""
+        if kind not in (None, "axis", "plane"):
+            raise ValueError(f"constraint kind must be 'axis', 'plane' or None, got {kind!r}")
+        new = None if kind is None else (kind, int(axis))
+        self._constraint = None if new == self._constraint else new
+        self._show_offset()
+
+    def constrained_position(self, x: float, y: float, snap: bool = False) -> np.ndarray:
+        """(3,) where the dragged point goes for the cursor at display x, y: in the view
+        plane, or on the constraint's line or plane through the drag's start point (the
+        point of it nearest to the cursor's ray); snap rounds the offset to GRID_STEP.
+        Coordinates a constraint holds keep the start's exact value."""
+        start = self._drag_start
+        tx, ty = np.array([x, y]) + self._drag_offset
+        free = np.ones(3, dtype=bool)
+        if self._constraint is None:
+            offset = self.display_to_world(tx, ty, self._drag_depth) - start
+        else:
+            kind, a = self._constraint
+            near = self.display_to_world(tx, ty, 0.0)
+            ray = self.display_to_world(tx, ty, 1.0) - near
+            offset = np.zeros(3)
+            if kind == "axis":
+                free[:] = False
+                free[a] = True
+                # Closest point of the line start + s e_a to the ray near + r ray.
+                w0 = start - near
+                b, c = ray[a], float(ray @ ray)
+                denom = c - b * b
+                if denom > 1e-12 * c:
+                    offset[a] = (b * float(ray @ w0) - c * w0[a]) / denom
+            else:
+                free[a] = False
+                if abs(ray[a]) > 1e-6 * np.linalg.norm(ray):  # the ray meets the plane
+                    hit = near + ray * ((start[a] - near[a]) / ray[a])
+                else:  # seen edge-on: the view-plane point, projected into it
+                    hit = self.display_to_world(tx, ty, self._drag_depth)
+                offset = hit - start
+        if snap:
+            offset = np.round(offset / GRID_STEP) * GRID_STEP
+        position = start.copy()
+        position[free] = start[free] + offset[free]
+        return position
+
+    @property
+    def drag_offset(self) -> np.ndarray:
+        """(3,) the dragged point's offset from where the drag started."""
+        return self._drag_delta.copy()
+
+    @property
+    def drag_text(self) -> str:
+        """What the view shows during a drag: the offset and the constraint."""
+        if self._drag is None:
+            return ""
+        dx, dy, dz = self._drag_delta
+        text = f"offset  x {dx:+.4f}  y {dy:+.4f}  z {dz:+.4f}"
+        if self._constraint is not None:
+            kind, a = self._constraint
+            text += (f"   along {'XYZ'[a]}" if kind == "axis"
+                     else f"   in the {''.join(c for i, c in enumerate('XYZ') if i != a)} plane")
+        return text + "   (X/Y/Z axis, Shift plane, Ctrl snap, Esc cancel)"
+
+    def _show_offset(self) -> None:
+        if self._drag is None:
+            self._offset_actor.VisibilityOff()
+        else:
+            self._offset_actor.SetInput(self.drag_text)
+            self._offset_actor.VisibilityOn()
+
+    def drag_to(self, x: float, y: float, snap: bool = False) -> bool:
+        """Move the dragged handle under display point x, y: in the view plane, or along
+        the constraint; snap (Ctrl) rounds the offset to GRID_STEP."""
         if self._drag is None:
             return False
-        target = np.array([x, y]) + self._drag_offset
-        position = self.display_to_world(target[0], target[1], self._drag_depth)
-        return self.drag_control_point(self._drag[0], self._drag[1], position)
+        position = self.constrained_position(x, y, snap)
+        moved = self.drag_control_point(self._drag[0], self._drag[1], position)
+        if moved:
+            self._drag_delta = position - self._drag_start
+            self._show_offset()
+        return moved
+
+    def cancel_drag(self) -> None:
+        """Esc: end the drag and put the point back exactly (the drag's undo step is
+        reverted and forgotten)."""
+        if self._drag is None:
+            return
+        if self.stack is not None:
+            self.stack.revert_open()
+        self.end_drag()
 
     def end_drag(self) -> None:
         self._drag = None
+        self._constraint = None
         if self.stack is not None:
             self.stack.close_merge()
+        self._show_offset()
         self._update_overlay()
         self.request_render()
 
@@ -507,17 +634,126 @@ class SweepScene:
             self.request_render()
         return hit is not None
 
-    def click(self, x: float, y: float) -> None:
-        """A click without a drag selects the primitive under the cursor (or none)."""
-        self.doc.select(self.pick_primitive(x, y))
+    def click(self, x: float, y: float, additive: bool = False) -> None:
+        """A click without a drag selects the primitive under the cursor (or none); with
+        additive (Ctrl or Shift held) it is added to, or taken from, the selection."""
+        hit = self.pick_primitive(x, y)
+        if not additive:
+            self.doc.select(hit)
+        elif hit is not None:
+            chosen = list(self.doc.selected_indices)
+            if hit in chosen:
+                chosen.remove(hit)
+                self.doc.set_selection(chosen)
+            else:
+                self.doc.set_selection([*chosen, hit])
+
+    # -- control points -------------------------------------------------------------------
+    def axis_hit(self, x: float, y: float) -> float | None:
+        """The axis parameter t of the selected primitive's axis point under display x, y
+        (within the pick distance), or None."""
+        sel = self.doc.selection
+        if sel is None or self._preview is not None or not self.doc.primitive(sel).visible:
+            return None
+        t = np.linspace(0.0, 1.0, AXIS_PICK_SAMPLES)
+        d = self.world_to_display(axis_points(self.doc.primitive(sel).control_points[None], t)[0])
+        dist = np.hypot(d[:, 0] - x, d[:, 1] - y)
+        k = int(np.argmin(dist))
+        return float(t[k]) if dist[k] <= PICK_PIXELS else None
+
+    def _push_or_report(self, make: Any) -> bool:
+        if self.stack is None or self._preview is not None:
+            return False
+        try:
+            self.stack.push(make())
+        except SweepeditError as exc:
+            if self.report is not None:
+                self.report(str(exc))
+            return False
+        return True
+
+    def insert_control_point(self, t: float | None = None) -> bool:
+        """Insert a control point into the selected primitive's axis at parameter t (None:
+        split its longest leg); one undo step."""
+        sel = self.doc.selection
+        if sel is None:
+            return False
+        self.stack.close_merge() if self.stack is not None else None
+        return self._push_or_report(lambda: insert_control_point(self.doc, sel, t))
+
+    def delete_control_point(self, cp_index: int | None = None) -> bool:
+        """Delete a control point of the selected primitive (default: the one under the
+        cursor); at least 3 stay."""
+        sel = self.doc.selection
+        cp_index = self._hover if cp_index is None else cp_index
+        if sel is None or cp_index is None:
+            if self.report is not None:
+                self.report("Point at a control point (its handle) to delete it.")
+            return False
+        self.stack.close_merge() if self.stack is not None else None
+        return self._push_or_report(lambda: delete_control_point(self.doc, sel, cp_index))
+
+    # -- camera ---------------------------------------------------------------------------
+    def _bounds(self, indices: Sequence[int] | None = None) -> tuple[float, ...]:
+        main = self.plotter.renderer
+        if indices:
+            boxes = np.array([self._actors[i].actor.GetBounds() for i in indices
+                              if i < len(self._actors) and self._actors[i].actor.GetVisibility()])
+            if len(boxes):
+                return (boxes[:, 0].min(), boxes[:, 1].max(), boxes[:, 2].min(),
+                        boxes[:, 3].max(), boxes[:, 4].min(), boxes[:, 5].max())
+        b = main.ComputeVisiblePropBounds()
+        return tuple(b) if b[0] <= b[1] else (-0.5, 0.5, -0.5, 0.5, -0.5, 0.5)
+
+    def view_preset(self, name: str) -> None:
+        """Look at everything from one of VIEW_PRESETS (front, back, left, right, top,
+        bottom, isometric), keeping the projection (perspective or orthographic)."""
+        if name not in VIEW_PRESETS:
+            raise ValueError(f"unknown view {name!r}; one of {', '.join(VIEW_PRESETS)}")
+        direction, up = (np.asarray(v, dtype=np.float64) for v in VIEW_PRESETS[name])
+        b = self._bounds()
+        center = np.array([(b[0] + b[1]) / 2, (b[2] + b[3]) / 2, (b[4] + b[5]) / 2])
+        camera = self.plotter.renderer.GetActiveCamera()
+        camera.SetFocalPoint(*center)
+        camera.SetPosition(*(center + direction / np.linalg.norm(direction)))
+        camera.SetViewUp(*up)
+        self.plotter.renderer.ResetCamera(b)
+        self.request_render()
+
+    @property
+    def orthographic(self) -> bool:
+        return bool(self.plotter.renderer.GetActiveCamera().GetParallelProjection())
+
+    def set_orthographic(self, on: bool) -> None:
+        """Orthographic or perspective projection, keeping the apparent size at the focal
+        point."""
+        camera = self.plotter.renderer.GetActiveCamera()
+        if on:
+            half = np.radians(camera.GetViewAngle()) / 2.0
+            camera.SetParallelScale(camera.GetDistance() * np.tan(half))
+        camera.SetParallelProjection(bool(on))
+        self.plotter.renderer.ResetCameraClippingRange()
+        self.request_render()
+
+    def frame_selection(self) -> None:
+        """Fit the view to the selected primitives (everything when none is selected)."""
+        self.plotter.renderer.ResetCamera(self._bounds(self.doc.selected_indices))
+        self.request_render()
+
+
+_AXIS_KEYS = {Qt.Key.Key_X: 0, Qt.Key.Key_Y: 1, Qt.Key.Key_Z: 2}
 
 
 class SceneMouse(QObject):
     """Qt event filter on the interactor widget: handle drags win over camera moves.
 
     Presses on a handle are swallowed (VTK never starts a rotation); other presses go on
-    to VTK, and a press-release without motion selects the primitive under the cursor.
-    Key presses are swallowed too, so VTK's single-letter bindings (q quits, w shows
+    to VTK, and a press-release without motion selects the primitive under the cursor
+    (Ctrl or Shift: adds to or takes from the selection). During a drag, X/Y/Z constrain
+    it to that axis, Shift+X/Y/Z to the plane normal to it, Ctrl snaps, Esc cancels. A
+    right click without motion opens the context menu (`menu`, with the scene's control
+    point entries and then `menu_actions`, which the window fills).
+    Other key presses are swallowed too, so VTK's single-letter bindings (q quits, w shows
     wireframes) cannot fire; the window's shortcuts still work (they are handled first).
     """
 
@@ -526,6 +762,10 @@ class SceneMouse(QObject):
         self.scene = scene
         self.widget = widget
         self._press: tuple[float, float] | None = None
+        self._right_press: tuple[float, float] | None = None
+        self._last: tuple[float, float] = (0.0, 0.0)
+        self.menu: QMenu | None = None
+        self.menu_actions: list[QAction | None] = []  # None: a separator
         widget.installEventFilter(self)
 
     def _display(self, event: Any) -> tuple[float, float]:
@@ -533,21 +773,80 @@ class SceneMouse(QObject):
         ratio = self.widget.devicePixelRatioF()
         return pos.x() * ratio, (self.widget.height() - pos.y() - 1) * ratio
 
+    def _drag_key(self, event: Any) -> bool:
+        """Handle a key press during a drag; True when it was one of the drag's keys."""
+        key = event.key()
+        if key == Qt.Key.Key_Escape:
+            self.scene.cancel_drag()
+            return True
+        if key in _AXIS_KEYS:
+            plane = bool(event.modifiers() & Qt.KeyboardModifier.ShiftModifier)
+            self.scene.set_constraint("plane" if plane else "axis", _AXIS_KEYS[key])
+        elif key != Qt.Key.Key_Control:
+            return False
+        # Re-place the point at once for the new constraint (or snap).
+        snap = bool(event.modifiers() & Qt.KeyboardModifier.ControlModifier)
+        self.scene.drag_to(*self._last, snap=snap)
+        return True
+
+    def show_menu(self, x: float, y: float, global_pos: Any) -> QMenu:
+        """The context menu for display point x, y (not blocking: tests trigger its
+        actions; `menu` keeps it)."""
+        scene = self.scene
+        menu = QMenu(self.widget)
+        hit = scene.pick_handle(x, y)
+        t = scene.axis_hit(x, y)
+        prim = scene.doc.selected
+        if hit is not None:
+            n = scene.doc.primitive(hit[0]).n_control_points
+            a = menu.addAction(f"Delete control point {hit[1] + 1}",
+                               lambda cp=hit[1]: scene.delete_control_point(cp))
+            a.setEnabled(n > 3 and not scene.doc.primitive(hit[0]).locked)
+        if t is not None:
+            menu.addAction("Insert control point here", lambda: scene.insert_control_point(t))
+        elif prim is not None:
+            menu.addAction("Insert control point", lambda: scene.insert_control_point(None))
+        for action in self.menu_actions:
+            if action is None:
+                menu.addSeparator()
+            else:
+                menu.addAction(action)
+        self.menu = menu
+        menu.popup(global_pos)
+        return menu
+
     def eventFilter(self, obj: QObject, event: QEvent) -> bool:  # noqa: N802 (Qt API)
         t = event.type()
+        if (t == QEvent.Type.ShortcutOverride and self.scene.dragging
+                and event.key() in (*_AXIS_KEYS, Qt.Key.Key_Escape)):
+            event.accept()  # the drag's keys win over the window's shortcuts
+            return True
+        if t == QEvent.Type.KeyPress and self.scene.dragging and self._drag_key(event):
+            return True
+        if t == QEvent.Type.KeyRelease and self.scene.dragging \
+                and event.key() == Qt.Key.Key_Control:
+            self.scene.drag_to(*self._last, snap=False)
+            return True
         if t in (QEvent.Type.KeyPress, QEvent.Type.KeyRelease):
             return True
         if t == QEvent.Type.MouseButtonPress and event.button() == Qt.MouseButton.LeftButton:
             x, y = self._display(event)
             hit = self.scene.pick_handle(x, y)
             if hit is not None and self.scene.begin_drag(hit[0], hit[1], x, y):
+                self._last = (x, y)
+                self.widget.setFocus()  # the drag's keys (X, Y, Z, Esc) come here
                 return True
             self._press = (x, y)
+            return False
+        if t == QEvent.Type.MouseButtonPress and event.button() == Qt.MouseButton.RightButton:
+            self._right_press = self._display(event)
             return False
         if t == QEvent.Type.MouseMove:
             x, y = self._display(event)
             if self.scene.dragging:
-                self.scene.drag_to(x, y)
+                self._last = (x, y)
+                snap = bool(event.modifiers() & Qt.KeyboardModifier.ControlModifier)
+                self.scene.drag_to(x, y, snap=snap)
                 return True
             if event.buttons() == Qt.MouseButton.NoButton:
                 over = self.scene.hover(x, y)
@@ -561,8 +860,15 @@ class SceneMouse(QObject):
                 return True
             if self._press is not None and np.hypot(x - self._press[0],
                                                     y - self._press[1]) <= CLICK_SLOP:
-                self.scene.click(x, y)
+                additive = bool(event.modifiers() & (Qt.KeyboardModifier.ControlModifier
+                                                     | Qt.KeyboardModifier.ShiftModifier))
+                self.scene.click(x, y, additive=additive)
             self._press = None
+        if t == QEvent.Type.MouseButtonRelease and event.button() == Qt.MouseButton.RightButton:
+            x, y = self._display(event)
+            press, self._right_press = self._right_press, None
+            if press is not None and np.hypot(x - press[0], y - press[1]) <= CLICK_SLOP:
+                self.show_menu(x, y, event.globalPosition().toPoint())
         return False
 
 

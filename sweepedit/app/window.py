@@ -43,10 +43,13 @@ from sweepedit.app.commands import (
     AddPrimitive,
     CommandStack,
     DeletePrimitive,
+    DeletePrimitives,
     ReplacePrimitives,
     apply_fit,
     duplicate_primitive,
+    mirror_selection,
     new_primitive,
+    set_field_many,
 )
 from sweepedit.app.document import Document
 from sweepedit.app.heatmap_view import HeatMapView
@@ -96,14 +99,22 @@ def _join_orphan_threads() -> None:
 
 HELP_TEXT = """<b>Mouse</b><br>
 Left-drag: rotate · Shift+left-drag or middle-drag: pan · wheel / right-drag: zoom<br>
-Click a primitive to select it; drag its white handles to move its axis control points
-(in the view plane).<br><br>
+Click a primitive to select it (Ctrl/Shift+click: add to the selection); drag its white
+handles to move its axis control points (in the view plane; during a drag X/Y/Z keep it
+on that axis, Shift+X/Y/Z in the plane across it, Ctrl snaps to 0.01, Esc puts the point
+back). Right-click: insert a control point on the axis or delete the one under the
+cursor.<br><br>
 <b>Keys</b><br>
 Ctrl+N new · Ctrl+W close · Ctrl+O open shape · Ctrl+Shift+O open parameters ·
 Ctrl+S save · Ctrl+Shift+S save as<br>
 Ctrl+Z undo · Ctrl+Shift+Z / Ctrl+Y redo · Ctrl+Shift+N add · Ctrl+D duplicate ·
 Delete delete<br>
-F fit view · T show/hide the target shape · Enter in the transform section applies it"""
+F fit view · T show/hide the target shape · Enter in the transform section applies it<br>
+Ctrl+A select all · I insert a control point · Shift+Del delete the control point under
+the cursor · H hide · L lock · Ctrl+Shift+X/Y/Z mirror the selection · Shift+M
+symmetric editing<br>
+Numpad 1/3/7 front/right/top (Ctrl: back/left/bottom) · 9 isometric · 5 orthographic ·
+. frame the selection"""
 
 
 def _png_bytes(image: QImage) -> bytes:
@@ -160,6 +171,7 @@ class MainWindow(QMainWindow):
         self.plotter.add_axes(interactive=False, line_width=2)
         self.scene = SweepScene(self.plotter, self.doc, self.stack)
         self.mouse = SceneMouse(self.scene, self.plotter)
+        self.scene.report = self.show_status
         self.heatmap = HeatMapView(self.scene, self.doc, self)
         self.heatmap.failed.connect(lambda m: self.show_status(f"Heat map unavailable: {m}"))
 
@@ -270,6 +282,7 @@ class MainWindow(QMainWindow):
             "Fit the selected primitives to what the others leave uncovered; the others "
             "stay exactly as they are"))
         self.act_help = A("&Mouse and keys", self.show_help, QKeySequence.StandardKey.HelpContents)
+        self._make_editing_actions()
 
     def _make_menus(self) -> None:
         bar = self.menuBar()
@@ -304,6 +317,7 @@ class MainWindow(QMainWindow):
         view_menu.addAction(self.act_reset_camera)
         view_menu.addAction(self.act_heatmap)
         self.view_menu = view_menu
+        self._add_editing_menus(edit_menu, view_menu)
         help_menu = bar.addMenu("&Help")
         help_menu.addAction(self.act_help)
 
@@ -474,6 +488,7 @@ class MainWindow(QMainWindow):
                   self.act_export_step_union):
             a.setEnabled(has_prims and not fitting)
         self.list_panel.tree.setEnabled(not fitting)
+        self._update_editing_actions()
 
     # -- files ----------------------------------------------------------------------------
     def open_path(self, path: str | Path) -> bool:
@@ -821,8 +836,126 @@ class MainWindow(QMainWindow):
             self._push(duplicate_primitive(self.doc, self.doc.selection))
 
     def delete_primitive(self) -> None:
-        if self.doc.selection is not None:
-            self._push(DeletePrimitive(self.doc.selection))
+        """Delete the selected primitives (one undo step)."""
+        indices = list(self.doc.selected_indices)
+        if len(indices) == 1:
+            self._push(DeletePrimitive(indices[0]))
+        elif indices:
+            self._push(DeletePrimitives(indices))
+
+    # -- multi-selection, control points, mirror, camera presets ---------------------------
+    def _make_editing_actions(self) -> None:
+        A = self._action
+        self.act_select_all = A("Select &all", self.select_all, QKeySequence.StandardKey.SelectAll,
+                                "Select every primitive")
+        self.act_insert_cp = A("&Insert control point", lambda: self.scene.insert_control_point(),
+                               "I", "Add a control point to the selected primitive's axis "
+                               "(right-click the axis to choose where)")
+        self.act_delete_cp = A("Delete control &point", lambda: self.scene.delete_control_point(),
+                               "Shift+Del", "Delete the control point under the cursor "
+                               "(at least 3 stay)")
+        self.act_hide = A("&Hide / show selection", lambda: self.toggle_selection("visible"),
+                          "H", "Hide the selected primitives (or show them if all are hidden)")
+        self.act_lock = A("Loc&k / unlock selection", lambda: self.toggle_selection("locked"),
+                          "L", "Lock the selected primitives (or unlock them if all are locked)")
+        self.act_mirror = [A(f"Mirror &{c}", lambda a=a: self.mirror_selection(a),
+                             f"Ctrl+Shift+{c}",
+                             f"Add mirrored copies of the selection through the {c} = 0 plane "
+                             "of the shape's frame")
+                           for a, c in enumerate("XYZ")]
+        self.act_symmetric = A("S&ymmetric editing", self.toggle_symmetric, "Shift+M",
+                               "Edit a mirrored pair together: an edit of one is mirrored "
+                               "onto the other")
+        self.act_symmetric.setCheckable(True)
+        keypad = Qt.KeyboardModifier.KeypadModifier
+        ctrl = Qt.KeyboardModifier.ControlModifier
+
+        def keys(key: Qt.Key, modifiers: Any = keypad) -> QKeySequence:
+            return QKeySequence(modifiers | key)
+
+        presets = (("&Front", "front", keys(Qt.Key.Key_1)),
+                   ("&Back", "back", keys(Qt.Key.Key_1, keypad | ctrl)),
+                   ("&Right", "right", keys(Qt.Key.Key_3)),
+                   ("&Left", "left", keys(Qt.Key.Key_3, keypad | ctrl)),
+                   ("&Top", "top", keys(Qt.Key.Key_7)),
+                   ("Botto&m", "bottom", keys(Qt.Key.Key_7, keypad | ctrl)),
+                   ("&Isometric", "isometric", keys(Qt.Key.Key_9)))
+        self.act_views = {name: A(text, lambda name=name: self.scene.view_preset(name), key,
+                                  f"Look at everything from the {name}")
+                          for text, name, key in presets}
+        self.act_ortho = A("&Orthographic", self.toggle_orthographic, keys(Qt.Key.Key_5),
+                           "Orthographic (or perspective) projection")
+        self.act_ortho.setCheckable(True)
+        self.act_frame_selection = A("Frame &selection", self.scene.frame_selection,
+                                     keys(Qt.Key.Key_Period),
+                                     "Fit the view to the selected primitives")
+        self.mouse.menu_actions = [None, *self.act_mirror, self.act_symmetric, None,
+                                   self.act_hide, self.act_lock, self.act_frame_selection]
+
+    def _add_editing_menus(self, edit_menu: Any, view_menu: Any) -> None:
+        edit_menu.addSeparator()
+        edit_menu.addAction(self.act_select_all)
+        edit_menu.addAction(self.act_hide)
+        edit_menu.addAction(self.act_lock)
+        edit_menu.addSeparator()
+        edit_menu.addAction(self.act_insert_cp)
+        edit_menu.addAction(self.act_delete_cp)
+        edit_menu.addSeparator()
+        mirror_menu = edit_menu.addMenu("&Mirror")
+        for a in self.act_mirror:
+            mirror_menu.addAction(a)
+        edit_menu.addAction(self.act_symmetric)
+        camera_menu = view_menu.addMenu("&Camera")
+        for a in self.act_views.values():
+            camera_menu.addAction(a)
+        camera_menu.addSeparator()
+        camera_menu.addAction(self.act_ortho)
+        camera_menu.addAction(self.act_frame_selection)
+
+    def _update_editing_actions(self) -> None:
+        editable = not self.fitting
+        has_sel = bool(self.doc.selected_indices)
+        for a in (self.act_hide, self.act_lock, *self.act_mirror):
+            a.setEnabled(has_sel and editable)
+        for a in (self.act_insert_cp, self.act_delete_cp):
+            a.setEnabled(self.doc.selection is not None and editable)
+        self.act_select_all.setEnabled(len(self.doc) > 0 and editable)
+        self.act_delete.setText("De&lete primitives" if len(self.doc.selected_indices) > 1
+                                else "De&lete primitive")
+        self.act_delete.setIconText("Delete")
+
+    def select_all(self) -> None:
+        self.doc.set_selection(range(len(self.doc)), primary=self.doc.selection)
+
+    def toggle_selection(self, field: str) -> None:
+        """Hide or lock the whole selection in one undo step (show or unlock when every
+        selected primitive already is)."""
+        indices = list(self.doc.selected_indices)
+        if not indices:
+            return
+        value = not all(getattr(self.doc.primitive(i), field) for i in indices)
+        self.stack.close_merge()
+        self._push(set_field_many(self.doc, indices, field, value))
+
+    def mirror_selection(self, axis: int) -> None:
+        """Mirrored copies of the selection through the x, y or z plane (one undo step)."""
+        indices = list(self.doc.selected_indices)
+        if not indices:
+            self.show_status("Select the primitives to mirror first.")
+            return
+        self.stack.close_merge()
+        if self._push(mirror_selection(self.doc, indices, axis)):
+            self.show_status(f"Mirrored {len(indices)} primitive(s) through the "
+                             f"{'XYZ'[axis]} = 0 plane; Shift+M edits each pair together")
+
+    def toggle_symmetric(self) -> None:
+        self.stack.symmetric = self.act_symmetric.isChecked()
+        self.stack.close_merge()
+        self.show_status("Symmetric editing on: an edit of one of a mirrored pair is made to "
+                         "both" if self.stack.symmetric else "Symmetric editing off")
+
+    def toggle_orthographic(self) -> None:
+        self.scene.set_orthographic(self.act_ortho.isChecked())
 
     def toggle_shape(self) -> None:
         self.set_shape_visible(self.act_show_shape.isChecked())
@@ -842,7 +975,7 @@ class MainWindow(QMainWindow):
         """Refit the selected primitives (or `indices`) in the background, the others held
         exactly as they are; one undo step when it is applied."""
         if indices is None:
-            indices = [] if self.doc.selection is None else [self.doc.selection]
+            indices = list(self.doc.selected_indices)
         if not indices:
             self.show_status("Select the primitives to refit first.")
             return False
