@@ -21,6 +21,7 @@ from sweepedit.geometry.model import (
     SweepPrimitive,
     folds_onto_itself,
 )
+from sweepedit.geometry.sweep import axis_points
 from sweepedit.io.params import write_abstraction
 from sweepedit.io.step_export import (
     CAD_MISSING,
@@ -151,14 +152,20 @@ def test_union_is_one_solid_that_agrees_with_the_exact_inside_test(tmp_path: Pat
     assert [s.name for s in solids] == ["union"]
     estimate, error = _monte_carlo(prims, 300_000)
     assert solid_volume(solids[0].shape) == pytest.approx(estimate, abs=4 * error)
-    # occupancy of the re-read solid against the exact inside test on a grid
-    c = np.linspace(-0.4, 0.4, 14)
-    grid = np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1).reshape(-1, 3)
-    truth = inside_union(grid, prims)
+    # occupancy of the re-read solid against the exact inside test at points around it
+    # (around the axes, where inside and outside both occur, and in the box around them)
+    rng = np.random.default_rng(2)
+    axes = np.concatenate([axis_points(p.control_points[None], np.linspace(0, 1, 50))[0]
+                           for p in prims])
+    points = np.concatenate([axes[rng.integers(0, len(axes), 1200)]
+                             + rng.normal(0.0, 0.06, (1200, 3)),
+                             rng.uniform(axes.min(axis=0) - 0.1, axes.max(axis=0) + 0.1,
+                                         (300, 3))])
+    truth = inside_union(points, prims)
     classifier = BRepClass3d_SolidClassifier(solids[0].shape)
     got = np.array([classifier.Perform(gp_Pnt(*map(float, p)), 1e-7) or
-                    classifier.State() == TopAbs_IN for p in grid])
-    assert truth.sum() > 100
+                    classifier.State() == TopAbs_IN for p in points])
+    assert 300 < truth.sum() < 1200
     assert (got & truth).sum() / (got | truth).sum() >= 0.99
 
 
@@ -169,9 +176,25 @@ def test_a_folding_primitive_is_refused_by_name(tmp_path: Path) -> None:
                           degree=2.0, name="elbow")
     assert folds_onto_itself(fold)
     out = tmp_path / "fold.step"
-    with pytest.raises(StepExportError, match="'elbow' folds onto itself"):
+    with pytest.raises(StepExportError, match="primitive 'elbow'"):
         export_step(Abstraction([_curved()[1], fold]), out)
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+@needs_occ
+def test_a_mildly_folding_primitive_is_built_to_its_true_volume(tmp_path: Path) -> None:
+    # a short, tightly bent primitive of an official SweepNet fit (73.txt, primitive 1)
+    prim = SweepPrimitive([[-0.0739, -0.2348, -0.2147], [-0.0983, -0.2846, -0.1878],
+                           [-0.0453, -0.1523, 0.0022]], a=0.0379, b=0.0399, degree=1.8433,
+                          scaling=(0.4226, 0.4521), name="knuckle")
+    assert folds_onto_itself(prim)
+    out = tmp_path / "fold.step"
+    export_step(Abstraction([prim]), out)
+    solids = _check(out)
+    assert [s.name for s in solids] == ["knuckle"]
+    estimate, error = _monte_carlo([prim], 300_000)
+    assert solid_volume(solids[0].shape) == pytest.approx(estimate, abs=0.01 * estimate
+                                                          + 4 * error)
 
 
 @needs_occ
