@@ -16,6 +16,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import struct
 import zipfile
 from pathlib import Path
 
@@ -44,6 +45,8 @@ def check_claimed_sizes(path: Path, ext: str, data: bytes) -> None:
         _check_npy(path, io.BytesIO(data), len(data), "")
     elif ext == ".npz":
         _check_npz(path, data)
+    elif ext == ".glb":
+        _check_glb(path, data)
 
 
 def _claims_too_much(path: Path, what: str, needed: int, holds: int, unit: str) -> None:
@@ -78,7 +81,8 @@ def _check_ply(path: Path, data: bytes) -> None:
             type_name = words[2] if words[1] == "list" else words[1]
             # A list costs its count at least (it may be empty).
             elements[-1] = (name, count, size + _PLY_SIZES.get(type_name, 1), values + 1)
-    claims = ", ".join(f"{count:,} {name}" for name, count, _, _ in elements)
+    claims = ", ".join(f"{name}: {count:,}" for name, count, _, _ in elements[:4])
+    claims += ", ..." if len(elements) > 4 else ""
     if binary:
         needed = sum(count * size for _, count, size, _ in elements)
         _claims_too_much(path, claims, needed, len(body), "bytes of data")
@@ -149,8 +153,9 @@ def _check_npy(path: Path, stream: io.IOBase, size: int, member: str) -> None:
             shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
         else:
             shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
-    except (ValueError, TypeError, OSError, EOFError, SyntaxError) as exc:
-        raise FileFormatError(path, f"{where}not a readable NumPy array ({exc})") from None
+    except Exception as exc:  # numpy parses the header as Python literals: anything goes
+        raise FileFormatError(path, f"{where}not a readable NumPy array header "
+                                    f"({type(exc).__name__})") from None
     cells = math.prod(shape)
     if cells > MAX_VOXEL_CELLS:
         raise FileFormatError(path, f"{where}the array has shape {shape} ({cells:,} cells); "
@@ -165,10 +170,33 @@ def _check_npz(path: Path, data: bytes) -> None:
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as archive:
             for info in archive.infolist():
-                if not info.filename.endswith(".npy"):
+                if not info.filename.endswith(".npy"):  # read as raw bytes, if at all
+                    if info.file_size > MAX_VOXEL_CELLS:
+                        raise FileFormatError(path, f"the archive member {info.filename!r} "
+                                                    f"claims {info.file_size:,} bytes")
                     continue
                 with archive.open(info) as member:
                     _check_npy(path, member, info.file_size, info.filename[:-4])
+    except FileFormatError:
+        raise
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, ValueError,
             NotImplementedError) as exc:
         raise FileFormatError(path, f"not a readable .npz archive ({exc})") from None
+
+
+# --------------------------------------------------------------------------- GLB
+
+
+def _check_glb(path: Path, data: bytes) -> None:
+    """The binary glTF container: a 12-byte header (magic, version, total length), then
+    chunks of (length, type, data); every length must lie within the file."""
+    if len(data) < 12 or data[:4] != b"glTF":
+        return  # the reader says what it is not
+    offset = 12
+    while offset + 8 <= len(data):
+        length, kind = struct.unpack_from("<I4s", data, offset)
+        name = kind.decode("ascii", errors="replace").strip("\x00 ")
+        label = f"a {name} chunk" if name.isalnum() else "a chunk"
+        _claims_too_much(path, f"{label} of {length:,} bytes at byte {offset:,}",
+                         length, len(data) - offset - 8, "bytes")
+        offset += 8 + length

@@ -45,6 +45,15 @@ NEAR_SURFACE_CELLS = 2.0
 # Triangles with longer edges (normalised units, 2 cells at R = 64) are split before the
 # fast winding number.
 LONG_EDGE = 1.0 / 32.0
+# Faces that splitting may make, at most (or twice the mesh's own): a few thousand faces
+# that all span the shape would otherwise become millions, slower than not splitting.
+SPLIT_FACE_BUDGET = 400_000
+# A surface this large (normalised units; a unit cube has 6, the benchmark shapes at most
+# 3.2) is a tangle of overlapping triangles, as a damaged file gives: the Barnes-Hut far
+# field fails near all of it (a 1,236-face tangle took 30 s at 64^3) and summing every
+# triangle exactly is far cheaper, up to EXACT_WINDING_BUDGET triangle-query pairs (~2 s).
+TANGLE_AREA = 12.0
+EXACT_WINDING_BUDGET = 400_000_000
 # Surface samples per cell-face area used to find the cells that the surface passes through.
 SURFACE_SAMPLES_PER_CELL_AREA = 8.0
 MAX_SURFACE_SAMPLES = 2_000_000
@@ -78,11 +87,13 @@ class OccupancySamples:
 
 @dataclass
 class Voxelization:
-    """The grids of one shape. All arrays are (R, R, R) bool, indexed [ix, iy, iz]."""
+    """The grids of one shape, (R, R, R) arrays indexed [ix, iy, iz]: three bool grids,
+    and for meshes |winding number| at the cell centres (float; None otherwise)."""
 
     occupancy: np.ndarray
     winding_occupancy: np.ndarray
     surface_cells: np.ndarray
+    winding_number: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------- grid helpers
@@ -139,8 +150,14 @@ def winding_numbers(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray
     Q = np.ascontiguousarray(queries, dtype=np.float64).reshape(-1, 3)
     if Q.shape[0] == 0:
         return np.zeros(0)
-    edge = np.linalg.norm(V[F[:, [1, 2, 0]]] - V[F], axis=-1)
-    if float(edge.max()) > max_edge:
+    area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]),
+                                      axis=1).sum())
+    if area > TANGLE_AREA and len(F) * len(Q) <= EXACT_WINDING_BUDGET:
+        return np.concatenate([np.asarray(igl.winding_number(V, F, Q[i:i + WINDING_CHUNK_QUERIES]))
+                               for i in range(0, len(Q), WINDING_CHUNK_QUERIES)])
+    longest = np.linalg.norm(V[F[:, [1, 2, 0]]] - V[F], axis=-1).max(axis=1)
+    max_edge = _split_edge(longest, max_edge)
+    if float(longest.max()) > max_edge:
         V, F = trimesh.remesh.subdivide_to_size(V, F, max_edge=max_edge, max_iter=12)
         F = np.ascontiguousarray(F, dtype=np.int64)
         V = np.ascontiguousarray(V, dtype=np.float64)
@@ -149,6 +166,19 @@ def winding_numbers(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray
     chunk = max(WINDING_CHUNK_QUERIES, 4 * len(F))
     return np.concatenate([np.asarray(igl.fast_winding_number(V, F, Q[i:i + chunk]))
                            for i in range(0, len(Q), chunk)])
+
+
+def _split_edge(longest: np.ndarray, max_edge: float) -> float:
+    """The edge length to split to: `max_edge`, doubled while splitting the faces whose
+    longest edges are (F,) `longest` would make more than SPLIT_FACE_BUDGET faces (or
+    twice F). Each split quarters a face and halves its edges."""
+    budget = max(SPLIT_FACE_BUDGET, 2 * longest.size)
+    while True:
+        with np.errstate(divide="ignore"):
+            splits = np.ceil(np.log2(np.maximum(longest / max_edge, 1.0)))
+        if float(np.sum(4.0 ** np.minimum(splits, 12))) <= budget or not np.any(splits):
+            return max_edge
+        max_edge *= 2.0
 
 
 def signed_volume(mesh: trimesh.Trimesh) -> float:
@@ -312,11 +342,14 @@ def voxelize_mesh(mesh: trimesh.Trimesh, resolution: int = DEFAULT_RESOLUTION,
     on_surface, _ = trimesh.sample.sample_surface(mesh, max(n_near, 1), seed=rng)
     queries, n_near = sample_query_points(on_surface, n_samples, rng, resolution)
     centers = cell_centers(resolution)
-    inside = mesh_inside(mesh, np.concatenate([centers, queries], axis=0))
+    number = np.abs(winding_numbers(mesh.vertices, mesh.faces,
+                                    np.concatenate([centers, queries], axis=0)))
+    inside = number > 0.5
     winding = inside[: centers.shape[0]].reshape((resolution,) * 3)
     samples = make_samples(queries, inside[centers.shape[0]:], n_near)
     grids = Voxelization(occupancy=add_thin_parts(winding, surface),
-                         winding_occupancy=winding, surface_cells=surface)
+                         winding_occupancy=winding, surface_cells=surface,
+                         winding_number=number[: centers.shape[0]].reshape((resolution,) * 3))
     return grids, samples
 
 

@@ -185,9 +185,19 @@ def read_abstraction(path: PathLike) -> Abstraction:
     where it applies, the primitive, the field and the line); OSError if it cannot be read.
     """
     kind = _kind(path)
-    if kind == "json":
-        return _read_json(path)
-    return read_official_txt(path, n_control_points=None)
+    try:
+        if kind == "json":
+            return _read_json(path)
+        return read_official_txt(path, n_control_points=None)
+    except FileFormatError:
+        raise
+    except InvalidPrimitiveError as e:
+        raise e.in_file(path) from e
+    except (ValueError, KeyError, IndexError, OverflowError, RecursionError) as e:
+        # Content the checks above did not foresee (e.g. an integer of 5,000 digits, which
+        # Python's int parser refuses): still a problem of this file, reported as one.
+        raise FileFormatError(path, f"cannot read the parameter file ({type(e).__name__}: "
+                              f"{' '.join(str(e).split())[:200]})") from e
 
 
 def write_abstraction(abstraction: Abstraction, path: PathLike) -> None:

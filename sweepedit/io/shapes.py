@@ -305,10 +305,14 @@ def _read_voxels(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray, np.ndarr
             keys = list(loaded.files)
             if not keys:
                 raise FileFormatError(path, "the .npz archive holds no arrays")
-            key = next((k for k in NPZ_KEYS if k in keys), None)
-            if key is None:
-                key = next((k for k in keys if loaded[k].ndim >= 3), keys[0])
-            array = loaded[key]
+            try:  # members are read (and decompressed) only now
+                key = next((k for k in NPZ_KEYS if k in keys), None)
+                if key is None:
+                    key = next((k for k in keys if np.ndim(loaded[k]) >= 3), keys[0])
+                array = loaded[key]
+            except (*_DATA_ERRORS, OSError) as exc:
+                raise FileFormatError(path, f"a damaged .npz archive ({type(exc).__name__}: "
+                                            f"{_short(exc)})") from exc
     else:
         array = loaded
     array = np.asarray(array)
@@ -453,15 +457,14 @@ def _conditioning(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     return (lower + upper) / 2.0, math.ldexp(1.0, -math.floor(math.log2(extent)))
 
 
-def _check_encloses_volume(path: Path, mesh: trimesh.Trimesh, inside: np.ndarray) -> None:
+def _check_encloses_volume(path: Path, grids: occ.Voxelization) -> None:
     """DegenerateShapeError if an open mesh bounds nothing: its winding number passes
     0.5 near a curved sheet (it jumps by 1 across it), but stays below FIRM_WINDING;
-    inside a closed mesh it is 1, near a small hole little less. inside: (R, R, R) bool."""
-    if mesh.is_watertight or not inside.any():
-        return
-    centres = occ.cell_centers(inside.shape[0])[inside.ravel()]
-    firm = np.abs(occ.winding_numbers(mesh.vertices, mesh.faces, centres)) > FIRM_WINDING
-    if np.count_nonzero(firm) < MIN_INSIDE_CELLS:
+    inside a closed mesh it is 1, near a small hole little less."""
+    number = grids.winding_number
+    if number is None or np.count_nonzero(grids.winding_occupancy) < MIN_INSIDE_CELLS:
+        return  # too few cells inside at all: check_fittable says why
+    if np.count_nonzero(number > FIRM_WINDING) < MIN_INSIDE_CELLS:
         raise DegenerateShapeError(path, "degenerate shape: it is an open surface, a sheet "
                                          "that encloses no volume (its winding number stays "
                                          f"below {FIRM_WINDING}); there is nothing to fit")
@@ -499,7 +502,7 @@ def _shape_from_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, resolu
         mesh.invert()
     grids, samples = occ.voxelize_mesh(mesh, resolution, n_samples, seed)
     _check_occupancy(path, grids.occupancy)
-    _check_encloses_volume(path, mesh, grids.winding_occupancy)
+    _check_encloses_volume(path, grids)
     return Shape(path=path, kind="mesh", normalization=normalization, surface=mesh,
                  occupancy=grids.occupancy, winding_occupancy=grids.winding_occupancy,
                  samples=samples)
