@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -111,12 +112,15 @@ def read_recovery(path: Path) -> Recovery:
 
 class Autosaver(QObject):
     """Writes `doc` to this session's recovery file after changes, at most every
-    `interval_ms`. `remove()` after a save or at a clean exit; `written` counts writes."""
+    `interval_ms`. `remove()` after a save or at a clean exit; `written` counts writes.
+    `report(message)` is told, once per kind of failure, when the file cannot be written."""
 
     def __init__(self, doc: Document, directory: Path | None = None,
-                 interval_ms: int = AUTOSAVE_INTERVAL_MS, parent: QObject | None = None) -> None:
+                 interval_ms: int = AUTOSAVE_INTERVAL_MS, parent: QObject | None = None,
+                 report: Callable[[str], None] | None = None) -> None:
         super().__init__(parent)
         self.doc = doc
+        self.report = report
         self.directory = Path(directory) if directory is not None else default_recovery_dir()
         self.session = uuid.uuid4().hex[:12]
         self.path = self.directory / f"session-{self.session}.json"
@@ -158,7 +162,10 @@ class Autosaver(QObject):
             self._hold_lock()
             atomic_write_text(self.path, recovery_json(self.doc))
         except (OSError, ValueError) as exc:  # a full disk must not stop the editing
-            self.last_error = f"{self.path}: {exc}"
+            error = f"Autosave failed: cannot write {self.path} ({exc}); save your work."
+            if self.report is not None and error != self.last_error:
+                self.report(error)
+            self.last_error = error
             return False
         self.last_error = None
         self.written += 1

@@ -8,6 +8,7 @@ tests replace these two methods so that no modal dialog ever blocks them.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import copy
 import errno
 import time
@@ -92,10 +93,9 @@ def _join_orphan_threads() -> None:
     """At exit, let fits that were told to stop finish (their cancel is set): a QThread
     destroyed while it runs aborts the process."""
     for thread in _orphan_threads:
-        try:
+        with contextlib.suppress(RuntimeError):  # finished earlier and deleted
             thread.wait()
-        except RuntimeError:  # finished earlier and deleted (deleteLater)
-            pass
+
 
 HELP_TEXT = """<b>Mouse</b><br>
 Left-drag: rotate · Shift+left-drag or middle-drag: pan · wheel / right-drag: zoom<br>
@@ -159,7 +159,8 @@ class MainWindow(QMainWindow):
         self.settings = settings if settings is not None else QSettings("sweepedit", "sweepedit")
         self.doc = Document()
         self.stack = CommandStack(self.doc)
-        self.autosave = Autosaver(self.doc, recovery_dir, parent=self)
+        self.autosave = Autosaver(self.doc, recovery_dir, parent=self,
+                                  report=lambda message: self.show_status(message, 15000))
         # One headlight instead of pyvista's five-light kit: lighting is per fragment and
         # software GL (no GPU) pays for every light on every pixel.
         self.plotter = QtInteractor(self, auto_update=False, multi_samples=MULTI_SAMPLES,

@@ -257,3 +257,20 @@ def test_an_editor_killed_with_sigkill_is_recovered_exactly(tmp_path: Path,
                                                            q.name)
     assert back.source == {"path": str(small_files["obj"])}
     assert not recovery_file.exists()
+
+
+def test_an_autosave_that_cannot_write_says_so_once(qtbot, tmp_path: Path) -> None:
+    from sweepedit.app.autosave import Autosaver
+
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the data folder should be")
+    messages: list[str] = []
+    doc = Document(_abstraction())
+    stack = CommandStack(doc)
+    saver = Autosaver(doc, blocker / "recovery", report=messages.append)
+    for a in (0.05, 0.06):
+        stack.push(set_field(doc, 0, "a", a, merge=False))
+        assert not saver.write_now()
+    assert len(messages) == 1 and messages[0].startswith("Autosave failed: cannot write ")
+    assert "save your work" in messages[0]
+    saver.shutdown()
