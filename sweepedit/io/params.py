@@ -19,7 +19,9 @@ Official SweepNet text: one row per primitive, c1..cn (3n numbers), a, b, d, s_q
 normalisation (the identity), source and fit record are not stored.
 
 Every file is written atomically (`atomic_write_text`, `atomic_write_bytes`, `atomic_open`):
-a crash or error mid-write leaves the previous file untouched and no temporary file behind.
+an error mid-write leaves the previous file untouched and no temporary file behind; a
+crash (SIGKILL, a power cut) leaves the previous or the new file whole, and a hidden
+`.NAME.PID.HEX.tmp` that the next write of that file removes.
 """
 
 from __future__ import annotations
@@ -109,6 +111,7 @@ def atomic_open(path: PathLike, mode: Literal["wb", "w"] = "wb", *, encoding: st
         keep_mode: int | None = stat.S_IMODE(os.stat(path).st_mode)
     except FileNotFoundError:
         keep_mode = None
+    _remove_stale_temps(directory, path.name)
     try:
         tmp, fd = _create_temp(directory, path.name)
     except OSError as exc:
@@ -143,15 +146,44 @@ def _about(exc: OSError, path: Path) -> OSError:
 
 
 def _create_temp(directory: Path, name: str) -> tuple[Path, int]:
-    # Not tempfile.mkstemp: it creates mode 0600, and the saved file would keep it.
+    # Not tempfile.mkstemp: it creates mode 0600, and the saved file would keep it. The
+    # writer's process id in the name tells a later writer whether it is still alive.
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
     for _ in range(100):
-        tmp = directory / f".{name}.{secrets.token_hex(6)}.tmp"
+        tmp = directory / f".{name}.{os.getpid()}.{secrets.token_hex(6)}.tmp"
         try:
             return tmp, os.open(tmp, flags, 0o666)
         except FileExistsError:
             continue
     raise FileExistsError(f"could not create a temporary file next to {directory / name}")
+
+
+def _remove_stale_temps(directory: Path, name: str) -> None:
+    """Remove the temporary files of `name` left by writers that were killed mid-write
+    (SIGKILL, a power cut: no `except` ran), recognised by our naming and a process id
+    that no longer exists. Best effort, POSIX only (Windows has no harmless liveness
+    probe); another live writer's file is never touched."""
+    if os.name != "posix":
+        return
+    pattern = re.compile(rf"\.{re.escape(name)}\.(\d+)\.[0-9a-f]{{12}}\.tmp")
+    with contextlib.suppress(OSError), os.scandir(directory) as entries:
+        for entry in entries:
+            match = pattern.fullmatch(entry.name)
+            if match and not _process_exists(int(match.group(1))):
+                with contextlib.suppress(OSError):
+                    os.unlink(entry.path)
+
+
+def _process_exists(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)  # signal 0: only asks whether the process exists
+    except ProcessLookupError:
+        return False
+    except OSError:  # it exists but is not ours, or we cannot tell: keep its file
+        return True
+    return True
 
 
 def _fsync_directory(directory: Path) -> None:
