@@ -73,7 +73,8 @@ def _export_step(abstraction, args: argparse.Namespace) -> int:
     try:
         report = _run_cancellable(lambda: export_step(
             abstraction, args.output, union=args.union, original_frame=args.original_frame,
-            progress=progress, cancelled=cancel.is_set), cancel)
+            progress=progress, cancelled=cancel.is_set), cancel,
+            "cancelling after the current step; nothing will be written...")
     finally:
         bar.close()
     print(report.path)
@@ -204,8 +205,10 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_cancellable(work, cancel) -> object:
-    """Run work() in a thread; Ctrl-C sets `cancel` (the work returns its best so far)."""
+def _run_cancellable(work, cancel,
+                     notice: str = "cancelling, keeping the best result so far...") -> object:
+    """Run work() in a thread; Ctrl-C sets `cancel` (the work returns its best so far, or
+    raises) after printing `notice`."""
     import threading
 
     box: dict[str, object] = {}
@@ -222,7 +225,7 @@ def _run_cancellable(work, cancel) -> object:
         try:
             thread.join(0.2)
         except KeyboardInterrupt:
-            print("\nsweepedit: cancelling, keeping the best result so far...", file=sys.stderr)
+            print(f"\nsweepedit: {notice}", file=sys.stderr)
             cancel.set()
     if "error" in box:
         raise box["error"]  # type: ignore[misc]
