@@ -125,7 +125,11 @@ class RayEngine:
         self._owns = False
         if not ray.is_initialized():
             self._init(address, workers)
-        self._check_resources()
+        try:
+            self._check_resources()
+        except SweepeditError:
+            self.shutdown()
+            raise
         env = {name: str(cpus_per_task) for name in _THREAD_VARIABLES}
         self._remote = ray.remote(run_job).options(
             num_cpus=cpus_per_task, num_gpus=gpus_per_task, max_retries=max_retries,
