@@ -464,8 +464,10 @@ def _add_batch_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=_int_at_least(1), default=None,
                    help="shapes fitted at once (this machine's cores / --cpus-per-task; on "
                         "a cluster, as many as its CPUs hold)")
-    p.add_argument("--address", metavar="auto|ray://HOST:PORT", default=None,
-                   help="run on an existing Ray cluster instead of a local instance")
+    p.add_argument("--address", metavar="auto|HOST:PORT|ray://HOST:PORT", default=None,
+                   help="run on an existing Ray cluster instead of a local instance: auto "
+                        "(the one started on this machine), its head's HOST:PORT, or a Ray "
+                        "Client address (needs ray[client])")
     p.add_argument("--gpus-per-task", type=float, default=0.0,
                    help="GPUs per shape, where the cluster has them (0)")
     p.add_argument("--max-retries", type=_int_at_least(0), default=2,
