@@ -39,7 +39,7 @@ def test_the_corpus_is_complete():
 def warm_cli() -> None:
     """Import what `fit` and `inspect` import, so that timings measure the work only."""
     for module in ("tqdm", "sweepedit.analysis.metrics", "sweepedit.analysis.skeleton",
-                   "sweepedit.fitting.fit"):
+                   "sweepedit.fitting.fit", "sweepedit.io.params", "sweepedit.io.shapes"):
         importlib.import_module(module)
 
 
