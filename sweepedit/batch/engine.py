@@ -141,6 +141,10 @@ class RayEngine:
     def _init(self, address: str | None, workers: int | None) -> None:
         quiet = {"logging_level": logging.ERROR, "log_to_driver": False,
                  "configure_logging": True}
+        # Retries of a task that Ray's memory monitor killed have their own budget,
+        # unbounded by default in recent Ray: bound it too (read by this process's core
+        # worker, which owns the tasks).
+        os.environ.setdefault("RAY_task_oom_retries", str(self._max_retries))
         try:
             if address:
                 _check_reachable(address)
