@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +67,6 @@ class BatchReport:
     seconds: float
     engine: str
     fitted: int = 0
-    notes: list[str] = field(default_factory=list)
 
     @property
     def failed(self) -> list[JobOutcome]:
