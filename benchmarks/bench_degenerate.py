@@ -39,7 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3, help="runs per case (best kept)")
     args = parser.parse_args(argv)
     for module in ("torch", "sweepedit.fitting.fit", "sweepedit.analysis.metrics",
-                   "sweepedit.analysis.skeleton", "sweepedit.io.params", "tqdm"):
+                   "sweepedit.analysis.skeleton", "sweepedit.io.params", "sweepedit.io.shapes",
+                   "tqdm"):
         importlib.import_module(module)
     cases = json.loads((CORPUS / "cases.json").read_text())["cases"]
     wrong = 0
