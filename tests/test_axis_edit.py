@@ -22,6 +22,7 @@ from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import axis_points, scaling_factor, sweep_surface
 
 DENSE = np.linspace(0.0, 1.0, 3001)
+ASYMMETRIC_3 = np.array([[-0.4, -0.1, 0.05], [-0.1, 0.3, 0.2], [0.3, 0.05, -0.1]])
 
 
 def dense_axis(cp: np.ndarray, t: np.ndarray = DENSE) -> np.ndarray:
@@ -80,6 +81,23 @@ def test_three_to_four_is_exact_curve_parameter_and_surface(p: SweepPrimitive) -
     before = sweep_surface(*p.batch_arrays(), t, theta)
     after = sweep_surface(*q.batch_arrays(), t, theta)
     assert np.max(np.abs(after - before)) < 1e-12
+
+
+def test_an_axis_that_is_one_quadratic_stays_exact_at_any_count() -> None:
+    """A fitted 3-point axis is one quadratic: the uniform spline with any number of
+    points holds it at the same parameter, so insertions and deletions are exact and the
+    scaling stays."""
+    p = SweepPrimitive(ASYMMETRIC_3, scaling=(0.4, -0.3))
+    q = p
+    for n in (4, 5, 6):
+        q = insert_control_point(q, 0.37)
+        assert q.n_control_points == n and q.scaling == p.scaling
+        assert np.max(np.abs(dense_axis(q.control_points) - dense_axis(p.control_points))) \
+            < 1e-12
+    for index in (3, 1, 2):
+        q = delete_control_point(q, index)
+    assert q.scaling == p.scaling
+    assert np.allclose(q.control_points, p.control_points, atol=1e-12)
 
 
 def test_other_insertions_stay_within_one_percent_and_the_scaling_follows() -> None:

@@ -8,8 +8,11 @@ control points it is m = n - 2 quadratic segments, segment j covering t in [j/m,
   halves of de Casteljau's subdivision, which is the uniform 4-point spline; the curve
   and its parameter stay, so the scaling f(t) stays as it is.
 - Otherwise a uniform spline with one point more (or less) cannot hold the old curve in
-  general; the new control points are the least-squares approximation of the old axis
-  sampled densely, with the end points kept and the sample parameters corrected by
+  general. First the least-squares fit at the same parameter t is tried (exact when the
+  old axis lies in the new space, e.g. one quadratic: every 3-point fit after 3 -> 4;
+  then the scaling stays as it is). Beyond KEEP_PARAMETER the new control points are
+  the geometric least-squares approximation of the old axis sampled densely, with the
+  end points kept and the sample parameters corrected by
   projection onto the new curve and tangent distance minimisation. The scaling polynomial is then
   refitted, by least squares, so that f follows the same part of the axis: each new
   parameter is matched to the old parameter at the same fraction of arclength.
@@ -39,6 +42,9 @@ TANGENT_WEIGHT = 0.1  # of the squared error along the tangent
 MEASURE_SAMPLES = 2049
 INSERT_MEASURE_SAMPLES = 513  # choosing among the fit's rounds
 MAX_DEVIATION = 0.01  # of the old axis length
+# A fit at the old parameter this close (of the axis length) is taken as it is: the
+# scaling then follows the same part of the axis exactly, without refitting.
+KEEP_PARAMETER = 0.005
 AXES = {"x": 0, "y": 1, "z": 2}
 
 
@@ -229,15 +235,26 @@ def refit_scaling(old_cp: np.ndarray, old_scaling: tuple[float, ...], new_cp: np
 def insert_control_point(primitive: SweepPrimitive, t: float | None = None) -> SweepPrimitive:
     """A copy of `primitive` with one control point more, inserted where the axis has
     parameter t (the clicked point; default: the middle of the longest control-polygon
-    leg's segment). 3 -> 4 points is exact (knot insertion at 1/2, whatever t), other
-    counts keep the axis within MAX_DEVIATION of its length (ValueError otherwise) and
-    refit the scaling to follow the same part of the axis."""
+    leg's segment). 3 -> 4 points is exact (knot insertion at 1/2, whatever t). Other
+    counts: the least-squares fit at the same parameter when it stays within
+    KEEP_PARAMETER (exact for an axis that is one quadratic, as every 3-point fit is;
+    the scaling stays), else the geometric fit started from the click's knot, within
+    MAX_DEVIATION of the axis length (ValueError otherwise), with the scaling refitted
+    to follow the same part of the axis. With uniform knots the click can only steer
+    the latter."""
     cp = _check_points(primitive.control_points)
     n = len(cp)
     out = primitive.copy()
     if n == 3:
         c0, c1, c2 = cp
         out.control_points = np.stack([c0, (c0 + c1) / 2.0, (c1 + c2) / 2.0, c2])
+        return out
+    s = np.linspace(0.0, 1.0, FIT_SAMPLES)
+    target = axis_points(cp[None], s)[0]
+    length = axis_length(cp)
+    kept = _keep_parameter(cp, target, s, n + 1, length)
+    if kept is not None:
+        out.control_points = kept
         return out
     m = n - 2
     if t is None:
@@ -253,8 +270,6 @@ def insert_control_point(primitive: SweepPrimitive, t: float | None = None) -> S
     t = float(np.clip(t, (j + 0.25) / m, (j + 0.75) / m))
     old_knots = np.concatenate([np.arange(j + 1) / m, [t], np.arange(j + 1, m + 1) / m])
     new_knots = np.linspace(0.0, 1.0, m + 2)
-    s = np.linspace(0.0, 1.0, FIT_SAMPLES)
-    target = axis_points(cp[None], s)[0]
     # The least-squares rounds approach the old axis on average; the bound is on the
     # largest gap, which is not monotone over the rounds: keep the round that is best.
     deviation, new_cp = min(
@@ -262,7 +277,6 @@ def insert_control_point(primitive: SweepPrimitive, t: float | None = None) -> S
          for c in fit_iterates(target, n + 1, np.interp(s, old_knots, new_knots))),
         key=lambda pair: pair[0])
     deviation = axis_deviation(cp, new_cp)
-    length = axis_length(cp)
     if deviation > MAX_DEVIATION * length:
         raise ValueError(f"inserting a control point would move the axis by "
                          f"{deviation / length:.1%} of its length")
@@ -271,13 +285,25 @@ def insert_control_point(primitive: SweepPrimitive, t: float | None = None) -> S
     return out
 
 
+def _keep_parameter(cp: np.ndarray, target: np.ndarray, s: np.ndarray, n: int,
+                    length: float) -> np.ndarray | None:
+    """Control points (n, 3) of the least-squares fit of the axis at its own parameter
+    (samples target (M, 3) at s (M,)), when that stays within KEEP_PARAMETER of the axis
+    length: then f(t) needs no change. Exact whenever the old axis lies in the new
+    spline space, e.g. an axis that is one quadratic (every 3-point fit, after 3 -> 4)."""
+    new_cp = _fit_points(target, s, n)
+    return new_cp if axis_deviation(cp, new_cp) <= KEEP_PARAMETER * length else None
+
+
 def delete_control_point(primitive: SweepPrimitive, index: int) -> SweepPrimitive:
     """A copy of `primitive` with control point `index` removed (at least 3 remain).
 
     An end point is dropped (the axis now ends at its neighbour; the scaling is kept);
     an interior one gives the least-squares approximation of the old axis by a spline
-    with one point less, ends kept, and the scaling refitted to follow the same part
-    of the axis."""
+    with one point less, ends kept: at the same parameter when that stays within
+    KEEP_PARAMETER of the axis length (exact when the old axis fits, and the scaling
+    stays), else the geometric best fit with the scaling refitted to follow the same
+    part of the axis. Which interior point is named does not change the result."""
     cp = _check_points(primitive.control_points)
     n = len(cp)
     if n <= MIN_CONTROL_POINTS:
@@ -291,6 +317,10 @@ def delete_control_point(primitive: SweepPrimitive, index: int) -> SweepPrimitiv
         return out
     s = np.linspace(0.0, 1.0, FIT_SAMPLES)
     target = axis_points(cp[None], s)[0]
+    kept = _keep_parameter(cp, target, s, n - 1, axis_length(cp))
+    if kept is not None:
+        out.control_points = kept
+        return out
     new_cp = fit_uniform_axis(target, n - 1, s)
     out.control_points = new_cp
     out.scaling = refit_scaling(cp, primitive.scaling, new_cp)
