@@ -793,6 +793,8 @@ class SceneMouse(QObject):
         """The context menu for display point x, y (not blocking: tests trigger its
         actions; `menu` keeps it)."""
         scene = self.scene
+        if self.menu is not None:
+            self.menu.deleteLater()  # the last one (its actions belong to the window)
         menu = QMenu(self.widget)
         hit = scene.pick_handle(x, y)
         t = scene.axis_hit(x, y)
