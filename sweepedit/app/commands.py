@@ -653,8 +653,9 @@ def _mirrored_part(command: Command, partner: int, axis: int) -> Command | None:
 def with_mirror_partners(doc: Document, command: Command) -> Command:
     """`command` plus, for each primitive whose geometry it edits, the mirrored edit of
     its mirror partners (found on the document before the edit) that the command does
-    not edit itself: a mirrored pair stays exactly mirrored. One undo step; the merge
-    key is kept (with the partner set), so a symmetric drag still merges."""
+    not edit itself and that are not locked: a mirrored pair stays exactly mirrored.
+    One undo step; the merge key is kept (with the partner set), so a symmetric drag
+    still merges."""
     parts = command.parts if isinstance(command, MacroCommand) else [command]
     edited = {p.index for p in parts if isinstance(p, SetControlPoints | SetGeometry | SetFields)}
     extra: list[Command] = []
@@ -662,7 +663,7 @@ def with_mirror_partners(doc: Document, command: Command) -> Command:
         if not isinstance(part, SetControlPoints | SetGeometry | SetFields):
             continue
         for j, axis in mirror_partners(doc, part.index):
-            if j in edited:
+            if j in edited or doc.primitive(j).locked:  # a locked partner stays as it is
                 continue
             mirrored = _mirrored_part(part, j, axis)
             if mirrored is not None:

@@ -185,6 +185,12 @@ def test_mirror_and_symmetric_editing_keep_the_pair_mirrored(qtbot, window,
     qtbot.mouseRelease(window.plotter, Qt.MouseButton.LeftButton, pos=start + QPoint(24, -20))
     assert len(stack) == n + 1
     assert_mirrored(doc, 0, 2, 0)
+    # A locked partner stays as it is.
+    window._push(set_field(doc, 2, "locked", True, merge=False))
+    held = doc.primitive(2).control_points.copy()
+    window._push(move_control_point(doc, 0, 1, doc.primitive(0).control_points[1] + 0.01))
+    assert np.array_equal(doc.primitive(2).control_points, held)
+    stack.undo()
     other = doc.primitive(1).copy()
     while len(stack) > steps:
         stack.undo()
