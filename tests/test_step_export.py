@@ -62,13 +62,13 @@ def _check(path: Path) -> list:
     return solids
 
 
-def _monte_carlo(primitives: list[SweepPrimitive], n: int, seed: int = 1
+def _monte_carlo(primitives: list[SweepPrimitive], n: int, seed: int = 1, pad: float = 0.15
                  ) -> tuple[float, float]:
     """Volume of the union by the exact inside test at n points of a padded box, and its
     standard error: independent of the closed form and of OpenCascade."""
     rng = np.random.default_rng(seed)
     cps = np.concatenate([p.control_points for p in primitives])
-    lo, hi = cps.min(axis=0) - 0.15, cps.max(axis=0) + 0.15
+    lo, hi = cps.min(axis=0) - pad, cps.max(axis=0) + pad
     p = float(inside_union(rng.uniform(lo, hi, (n, 3)), primitives).mean())
     box = float(np.prod(hi - lo))
     return p * box, box * math.sqrt(p * (1 - p) / n)
@@ -179,6 +179,20 @@ def test_a_folding_primitive_is_refused_by_name(tmp_path: Path) -> None:
     with pytest.raises(StepExportError, match="primitive 'elbow'"):
         export_step(Abstraction([_curved()[1], fold]), out)
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+@needs_occ
+def test_a_sweep_that_comes_back_onto_itself_is_refused(tmp_path: Path) -> None:
+    # no fold anywhere, but the axis loops back across its first leg (0.011 apart, the
+    # profile 0.03 round): the solid overlaps itself and its closed form counts it twice
+    loop = SweepPrimitive([[-0.3, 0, 0], [0.3, 0, 0], [0.3, 0.3, 0], [0, 0.3, 0],
+                           [0.0, -0.2, 0.02]], a=0.03, b=0.03, degree=2.0, name="loop")
+    assert not folds_onto_itself(loop)
+    estimate, error = _monte_carlo([loop], 800_000, pad=0.05)  # the profile reaches 0.03
+    assert closed_form_volume(loop) > estimate + 4 * error
+    with pytest.raises(StepExportError, match=r"primitive 'loop'.*overlaps itself"):
+        export_step(Abstraction([loop]), tmp_path / "loop.step")
+    assert list(tmp_path.iterdir()) == []
 
 
 @needs_occ

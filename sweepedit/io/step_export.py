@@ -60,7 +60,13 @@ from sweepedit.geometry.solid import (
     _sample,
     profile_angles,
 )
-from sweepedit.geometry.sweep import axis_frames, bezier_segments, scaling_factor
+from sweepedit.geometry.sweep import (
+    axis_frames,
+    axis_points,
+    bezier_segments,
+    scaling_factor,
+    superellipse,
+)
 from sweepedit.io.params import atomic_write_bytes
 
 STEP_FORMATS = (".step", ".stp")
@@ -402,6 +408,12 @@ def primitive_solid(primitive: SweepPrimitive, index: int = 0,
     what = _describe(index, primitive)
     primitive.validate(index)
     scale = 1.0 if normalization is None else normalization.scale
+    if _sections_meet(primitive):
+        # The sweep overlaps itself where its axis comes back: the closed form counts
+        # that twice and a loft would intersect itself.
+        raise StepExportError(f"{what}: its axis comes back so close that the sweep "
+                              "overlaps itself, which STEP export cannot build as a "
+                              "correct solid yet; export a mesh, or move its control points")
     if folds_onto_itself(primitive):
         return _folding_solid(primitive, normalization, what)
     expected = closed_form_volume(primitive) * scale**3
@@ -459,6 +471,26 @@ def _clamped_rings(primitive: SweepPrimitive, stations: int, points: int
     lam = _forward_clamp(r)  # (S, P)
     rings = r.world(np.arange(len(r.t))[:, None], lam[:, :, None] * r.xy[None])
     return r.t, rings, r.centres, r.T, angles
+
+
+def _sections_meet(primitive: SweepPrimitive, samples: int = 512) -> bool:
+    """Whether the sweep may overlap itself where its axis comes back: two axis points
+    further apart along the axis than π times the largest profile radius (closer ones
+    cannot meet without a fold) lie closer than the sum of their radii (plus the gap
+    between samples). Conservative: a sweep it passes does not overlap itself."""
+    t = np.linspace(0.0, 1.0, samples)
+    x, y = superellipse(np.linspace(0.0, 2.0 * np.pi, 256, endpoint=False),
+                        primitive.profile[None])
+    radius = scaling_factor(primitive.scaling_array, t)[0] * float(np.hypot(x, y).max())
+    points = axis_points(primitive.control_points[None], t)[0]
+    step = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    along = np.concatenate([[0.0], np.cumsum(step)])
+    gap = float(step.max())
+    i, j = np.triu_indices(samples, 1)
+    far = along[j] - along[i] > np.pi * radius.max() + gap
+    i, j = i[far], j[far]
+    near = np.linalg.norm(points[i] - points[j], axis=1) < radius[i] + radius[j] + gap
+    return bool(near.any())
 
 
 def _ring_patches(rings: np.ndarray, t: np.ndarray, angles: np.ndarray
