@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from sweepedit.fitting.params import ParamLayout
 from sweepedit.fitting.refine import (
+    Adam,
     RefineSettings,
     ScoringPoints,
     missed_parts,
@@ -208,3 +210,21 @@ def test_union_near_equals_the_exact_union_after_a_small_move() -> None:
     exact = points.occupancy([moved]).any(axis=0)
     near = points.union_near([moved], before, width=3)
     np.testing.assert_array_equal(near, exact)
+
+
+def test_adam_matches_torch_optim_adam():
+    """refine.Adam is torch.optim.Adam's default update (to float rounding) over many steps
+    of a non-convex loss, so refinement keeps its behaviour without importing dynamo."""
+    torch.manual_seed(0)
+    target = torch.randn(5, 7)
+    ours = torch.randn(5, 7, requires_grad=True)
+    theirs = ours.detach().clone().requires_grad_(True)
+    mine = Adam(ours, lr=0.02)
+    reference = torch.optim.Adam([theirs], lr=0.02)
+    for _ in range(50):
+        for p, opt in ((ours, mine), (theirs, reference)):
+            p.grad = None
+            (torch.sin(3 * p) * target).sum().backward()
+            opt.step()
+    assert torch.allclose(ours, theirs, rtol=0, atol=1e-6)
+    assert not torch.equal(ours, target)  # it moved
