@@ -360,7 +360,9 @@ def _read_binvox(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         dims = tuple(int(v) for v in header["dim"])
         translate = np.array([float(v) for v in header.get("translate", ["0", "0", "0"])])
         scale = float(header.get("scale", ["1"])[0])
-    except (KeyError, ValueError) as exc:
+    except KeyError as exc:
+        raise FileFormatError(path, f"bad binvox header (no {exc} line)") from exc
+    except ValueError as exc:
         raise FileFormatError(path, f"bad binvox header ({exc})") from exc
     if (len(dims) != 3 or min(dims) < 1 or translate.shape != (3,)
             or not np.all(np.isfinite(translate)) or not 0 < scale < math.inf):
