@@ -111,7 +111,7 @@ Ctrl+Z undo · Ctrl+Shift+Z / Ctrl+Y redo · Ctrl+Shift+N add · Ctrl+D duplicat
 Delete delete<br>
 F fit view · T show/hide the target shape · Enter in the transform section applies it<br>
 Ctrl+A select all · I insert a control point · Shift+Del delete the control point under
-the cursor · H hide · L lock · Ctrl+Shift+X/Y/Z mirror the selection · Shift+M
+the cursor · H hide · L lock · Ctrl+Alt+X/Y/Z mirror the selection · Shift+M
 symmetric editing<br>
 Numpad 1/3/7 front/right/top (Ctrl: back/left/bottom) · 9 isometric · 5 orthographic ·
 . frame the selection"""
@@ -860,7 +860,7 @@ class MainWindow(QMainWindow):
         self.act_lock = A("Loc&k / unlock selection", lambda: self.toggle_selection("locked"),
                           "L", "Lock the selected primitives (or unlock them if all are locked)")
         self.act_mirror = [A(f"Mirror &{c}", lambda a=a: self.mirror_selection(a),
-                             f"Ctrl+Shift+{c}",
+                             f"Ctrl+Alt+{c}",  # Ctrl+Shift+Z is Redo
                              f"Add mirrored copies of the selection through the {c} = 0 plane "
                              "of the shape's frame")
                            for a, c in enumerate("XYZ")]

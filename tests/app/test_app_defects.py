@@ -426,3 +426,20 @@ def test_cancel_returns_control_within_a_second_when_the_fit_is_slow_to_stop(
     release.set()  # the fit returns late: its result is ignored, nothing breaks
     qtbot.wait(300)
     assert _snapshot(window.doc) == before and not window.fitting
+
+
+def test_no_two_actions_share_a_shortcut(window) -> None:
+    """Qt runs neither of two actions bound to one key (Mirror Z once took Redo's
+    Ctrl+Shift+Z), so every shortcut of the window belongs to one action."""
+    from PySide6.QtGui import QAction
+
+    owners: dict[str, str] = {}
+    for action in window.findChildren(QAction):
+        for key in action.shortcuts():
+            text = key.toString()
+            if not text:
+                continue
+            assert text not in owners, f"{text}: {owners[text]!r} and {action.text()!r}"
+            owners[text] = action.text()
+    assert owners.get("Ctrl+Shift+Z") == window.act_redo.text()
+    assert owners.get("Ctrl+Alt+Z") == window.act_mirror[2].text()
