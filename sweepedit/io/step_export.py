@@ -18,10 +18,11 @@ Every solid is checked with OpenCascade's analyser and against its volume in clo
 before anything is written; a union is checked against a Monte Carlo estimate from the
 exact inside test. A sweep that folds onto itself (its profile reaches past the axis'
 centre of curvature) would loft into a self-intersecting solid that OpenCascade's
-checker passes; it is lofted through the solid mesher's forward sections instead (the
-profile clamped short of the fold) where those never meet and the result is within 1%
-of a Monte Carlo estimate of the true volume, and refused with an error naming it
-otherwise (about 70% of the folding primitives of the official SweepNet fits).
+checker passes; it is lofted through forward sections instead (the profile clamped
+short of the fold, as the solid mesher's forward tubes) where those never meet and the
+result is within 1% of a Monte Carlo estimate of the true volume, and refused with an
+error naming it otherwise (26 of the 50 folding primitives of the official SweepNet
+fits). So is any sweep whose axis comes back close enough for it to overlap itself.
 
 OpenCascade (the `cad` extra, package cadquery-ocp-novtk) is imported only when a STEP
 file is made, so the rest of sweepedit works without it.
@@ -54,7 +55,6 @@ from sweepedit.geometry.model import (
 # the same rule must cut the B-rep runs as cuts its mesh pieces).
 from sweepedit.geometry.solid import (
     _crossed,
-    _forward_clamp,
     _meeting_sections,
     _runs,
     _sample,
@@ -96,6 +96,9 @@ UNION_SAMPLES = 300_000
 # points (a multiple of 4) and the Monte Carlo samples and tolerance of their check.
 FOLD_STATIONS = 24
 FOLD_PROFILE_POINTS = 32
+# Fold margins tried, least first: how far short of the fold (in the fold rate J) the
+# profile is clamped.
+FOLD_MARGINS = (0.1, 0.25, 0.4, 0.55, 0.7)
 FOLD_SAMPLES = 400_000
 FOLD_VOLUME_TOLERANCE = 0.01
 # Sewing tolerance, relative to the solid's size: neighbouring faces share their edge
@@ -460,15 +463,20 @@ def _sewn_solid(primitive: SweepPrimitive, surf: SideSurface,
 # --------------------------------------------------------------------------- folding
 
 
-def _clamped_rings(primitive: SweepPrimitive, stations: int, points: int
+def _clamped_rings(primitive: SweepPrimitive, stations: int, points: int, margin: float
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The forward sections of solid.py: at its stations, each profile point pulled
-    towards the axis onto the line where the fold rate J = 1 - o . q is FOLD_MARGIN
-    wherever it is beyond it on an adjacent segment -> t (S,), rings (S, P, 3), centres
-    (S, 3), tangents (S, 3), profile angles (P,)."""
+    """solid.py's forward sections with a fold margin of one's own: at its stations, each
+    profile point pulled towards the axis onto the line where the fold rate
+    J = 1 - o . q is `margin`, wherever it is beyond it at a sample of an adjacent
+    segment -> t (S,), rings (S, P, 3), centres (S, 3), tangents (S, 3), angles (P,)."""
     angles = profile_angles(primitive.degree, points)
     r = _sample(primitive, stations, points)
-    lam = _forward_clamp(r)  # (S, P)
+    reach = np.einsum("pc,smc->smp", r.xy, r.q)  # o . q, (S - 1, M, P)
+    with np.errstate(divide="ignore"):
+        lam = np.minimum(np.where(reach > 0.0, (1.0 - margin) / reach, np.inf).min(axis=1),
+                         1.0)  # per segment, (S - 1, P)
+    ones = np.ones_like(lam[:1])
+    lam = np.minimum(np.vstack([lam, ones]), np.vstack([ones, lam]))  # per station
     rings = r.world(np.arange(len(r.t))[:, None], lam[:, :, None] * r.xy[None])
     return r.t, rings, r.centres, r.T, angles
 
@@ -514,34 +522,45 @@ def _ring_patches(rings: np.ndarray, t: np.ndarray, angles: np.ndarray
 
 def _folding_solid(primitive: SweepPrimitive, normalization: Normalization | None,
                    what: str) -> Any:
-    """A primitive that folds onto itself, as the loft of solid.py's forward sections: the
-    profile clamped short of the fold, whose sweep runs forward everywhere (the material
-    beyond the fold is left out). Refused, naming the primitive, where those sections
-    cross or meet (solid.py's rules: a loft through them would overlap itself), and where
-    the solid is not within FOLD_VOLUME_TOLERANCE of a Monte Carlo estimate of the true
-    solid's volume from the exact inside test (the fold held more material than that)."""
-    t, rings, centres, tangents, angles = _clamped_rings(primitive, FOLD_STATIONS,
-                                                         FOLD_PROFILE_POINTS)
-    crossed = _crossed(rings, centres, tangents, forward=True)
-    if crossed.any():
-        raise StepExportError(f"{what} folds onto itself too tightly to be built as a "
-                              "correct STEP solid (its clamped sections cross); export a "
-                              "mesh, or make it thinner or its bend wider")
-    runs = _runs(~crossed, tangents, _meeting_sections(rings, centres, tangents))
-    if len(runs) != 1:
-        # Pieces cut where sections meet overlap across the bend; OpenCascade's fuse of
-        # such lofts was found slow (minutes) and often wrong, so they are refused.
-        raise StepExportError(f"{what} folds back onto itself across a tight bend, which "
-                              "STEP export cannot build as a correct solid yet; export a "
-                              "mesh, or make it thinner or its bend wider")
-    t_knots, patches = _ring_patches(rings, t, angles)
-    solid = _sewn_solid(primitive, SideSurface(t_knots, patches), normalization, what)
+    """A primitive that folds onto itself, as the loft of forward sections: the profile
+    clamped short of the fold (as solid.py's forward tubes), so that its sweep runs
+    forward everywhere; the material beyond is left out. Margins from FOLD_MARGINS are
+    tried in turn (a wider one clamps more, so that sections across a tight bend no
+    longer meet, but leaves out more): the first whose sections neither cross nor meet
+    (solid.py's rules: a loft through them would overlap itself) and whose solid is
+    within FOLD_VOLUME_TOLERANCE of a Monte Carlo estimate of the true volume from the
+    exact inside test is kept; if none is, the primitive is refused by name."""
     scale = 1.0 if normalization is None else normalization.scale
-    estimate, error = monte_carlo_volume([primitive], FOLD_SAMPLES)
-    tolerance = max(FOLD_VOLUME_TOLERANCE, UNION_SIGMAS * error / estimate)
-    _check_solid(solid, estimate * scale**3, tolerance, what,
-                 "the Monte Carlo estimate of its folding sweep")
-    return solid
+    estimate: tuple[float, float] | None = None
+    lost = None
+    for margin in FOLD_MARGINS:
+        t, rings, centres, tangents, angles = _clamped_rings(
+            primitive, FOLD_STATIONS, FOLD_PROFILE_POINTS, margin)
+        crossed = _crossed(rings, centres, tangents, forward=True)
+        if crossed.any() or len(_runs(~crossed, tangents,
+                                      _meeting_sections(rings, centres, tangents))) != 1:
+            continue
+        t_knots, patches = _ring_patches(rings, t, angles)
+        solid = _sewn_solid(primitive, SideSurface(t_knots, patches), normalization, what)
+        if estimate is None:
+            estimate = monte_carlo_volume([primitive], FOLD_SAMPLES)
+        volume, error = estimate[0] * scale**3, estimate[1] * scale**3
+        tolerance = max(FOLD_VOLUME_TOLERANCE, UNION_SIGMAS * error / volume)
+        try:
+            _check_solid(solid, volume, tolerance, what,
+                         "the Monte Carlo estimate of its folding sweep")
+            return solid
+        except StepExportError:
+            # Invalid, or too much or too little volume: a wider margin may still do.
+            short = 1.0 - solid_volume(solid) / volume
+            if 0.0 < short < 1.0:
+                lost = short if lost is None else min(lost, short)
+    detail = (f"the best solid built leaves out {100 * lost:.1f}% of it" if lost is not None
+              else "its sections meet across the bend however far they are clamped, or "
+                   "the loft through them is not a correct solid")
+    raise StepExportError(f"{what} folds onto itself too far to be built as a correct STEP "
+                          f"solid ({detail}); export a mesh, or make it thinner or its bend "
+                          "wider")
 
 
 def solid_volume(shape: Any) -> float:
