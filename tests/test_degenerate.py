@@ -113,7 +113,7 @@ def test_inspect_reports_the_tiny_and_huge_boxes(capsys, warm_cli):
         assert f"scale {scale}" in out and "watertight True, components 1" in out
 
 
-def test_fit_refuses_a_shape_that_encloses_nothing_at_once():
+def test_fit_refuses_a_shape_that_encloses_nothing_at_once(warm_cli):
     """A Shape built without load_shape (as the app or a script may): the fit's own
     check stops it before any work (it used to fit for 41 s and end in a traceback)."""
     from sweepedit.fitting.fit import FitSettings, fit_abstraction
