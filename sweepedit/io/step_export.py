@@ -80,7 +80,7 @@ PROFILE_AREA_TOLERANCE = 2.5e-4
 PROFILE_NODES = (8, 10, 12, 16, 20, 24, 32, 40, 48, 64)
 # Largest distance of the side surface's control curves from the exact ones at the
 # midpoints between stations, as a share of the profile's reach max(a, b) (times f there).
-AXIS_TOLERANCE = 5e-4
+AXIS_TOLERANCE = 1e-3
 MIN_SEGMENT_STATIONS = 5
 MAX_SEGMENT_STATIONS = 257
 # Relative precision of OpenCascade's adaptive volume integration.
