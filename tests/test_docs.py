@@ -243,7 +243,7 @@ def test_unknown_keys_are_allowed_at_every_level(validator: Draft202012Validator
 
 
 def _markdown_files() -> list[Path]:
-    return [ROOT / "README.md", *sorted(DOCS.glob("*.md")),
+    return [ROOT / "README.md", *sorted(DOCS.glob("*.md")), ROOT / "resources" / "README.md",
             ROOT / "sweepedit" / "resources" / "benchmark" / "README.md"]
 
 
