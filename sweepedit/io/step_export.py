@@ -159,7 +159,7 @@ def closed_form_volume(primitive: SweepPrimitive) -> float:
 
     The Jacobian of the sweep is f^2 |s'| (1 - o . q(t)) at profile point o; the profile is
     centrally symmetric, so o . q integrates to zero over it. Gauss-Legendre per Bezier
-    segment (each smooth inside), exact to rounding for these polynomials and square roots.
+    segment (each smooth inside: a polynomial times the root of a quadratic), 48 nodes.
     """
     p0, p1, p2 = (x[0] for x in bezier_segments(primitive.control_points[None]))
     m = len(p0)
