@@ -80,22 +80,27 @@ def test_overlapping_primitives_match_the_exact_union_mesh() -> None:
     assert np.median(err) < 2e-4
 
 
-def test_reuse_after_an_edit_gives_exactly_a_fresh_computation() -> None:
+def test_reuse_after_edits_gives_exactly_a_fresh_computation() -> None:
     rng = np.random.default_rng(3)
     points = rng.uniform(-0.5, 0.5, (3000, 3))
     prims = [cylinder(), SweepPrimitive(control_points=[[0, -0.3, 0], [0, 0, 0.02],
                                                          [0, 0.3, 0]], a=0.07, b=0.07)]
     mapper = HeatMapper(points)
-    mapper.compute(prims)
-    moved = prims[1].copy()
-    moved.control_points = moved.control_points + np.array([0.05, 0.0, 0.03])
-    edited = [prims[0], moved]
-    again = mapper.compute(edited)
-    fresh = HeatMapper(points).compute(edited)
-    assert np.array_equal(again.distance, fresh.distance)
-    assert np.array_equal(again.inside, fresh.inside)
-    # The edit changed the map where the moved primitive is.
-    assert not np.array_equal(again.distance, HeatMapper(points).compute(prims).distance)
+    first = mapper.compute(prims)
+    assert mapper.searched == len(points)
+    # Small moves, a move that buries the second primitive in the first and one that
+    # brings it out again, an undo: each time what a fresh mapper computes.
+    for shift in ([0.01, 0.0, 0.0], [0.0, 0.005, 0.01], [0.0, 0.0, -0.03], [0.3, 0.0, 0.0],
+                  [-0.3, 0.0, 0.0], [0.0, 0.0, 0.0]):
+        moved = prims[1].copy()
+        moved.control_points = moved.control_points + np.array(shift)
+        again = mapper.compute([prims[0], moved])
+        fresh = HeatMapper(points).compute([prims[0], moved])
+        assert np.array_equal(again.distance, fresh.distance)
+        assert np.array_equal(again.inside, fresh.inside)
+        if shift == [0.01, 0.0, 0.0]:
+            assert mapper.searched < len(points) / 2  # only the vertices near the edit
+    assert np.array_equal(mapper.compute(prims).distance, first.distance)
 
 
 def test_duplicates_empty_input_and_bad_shapes() -> None:

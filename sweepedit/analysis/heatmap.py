@@ -21,9 +21,8 @@ on q's tangent plane lies within one sample spacing of q (v is over the smooth s
 there, not beyond a rim) the distance to that tangent plane is taken instead, which
 removes the sampling error to second order. The error is then about
 curvature * spacing^2 / 2 (1e-4 on the test cylinder; up to one sample spacing, ~0.01,
-right at a crease where two primitives cross, and up to NEAREST_EPS relatively far from
-the surface), below what the colour bar resolves. Tests bound it against an analytic
-cylinder and the exact union mesh.
+right at a crease where two primitives cross), below what the colour bar resolves. Tests
+bound it against an analytic cylinder and the exact union mesh.
 
 Speed. `HeatMapper` keeps, per primitive, its samples, its exact occupancy at the
 target's vertices and which of its samples lie inside each other primitive: after an edit
@@ -48,11 +47,8 @@ from sweepedit.geometry.solid import solid_mesh
 SAMPLE_STATIONS = 96
 SAMPLE_PROFILE_POINTS = 64
 CAP_RINGS = 8
-# Samples examined per vertex, and how much (relatively) further away the search may
-# return them.
+# Samples examined per vertex (inside a convex edge the nearest can be on the far face).
 NEAREST = 4
-# The nearest-sample search may return one this much (relatively) further away.
-NEAREST_EPS = 0.1
 
 _Key = tuple
 
@@ -183,10 +179,30 @@ def boundary_samples(primitive: SweepPrimitive, stations: int = SAMPLE_STATIONS,
         float(max(along, around, radial)), ((S, P), (cap_rings + 1, P), (cap_rings + 1, P)))
 
 
+@dataclass
+class _Nearest:
+    """What a computation leaves for the next one: per primitive (in order) its sample
+    status (M_i,) int8 (0 buried, 1 on the boundary, 2 on it but next to a buried one: no
+    tangent planes), the k candidate samples of each vertex (N, k) as indices into that
+    computation's concatenated boundary samples, the distance (N,) to the farthest
+    candidate, and the unsigned distances (N,)."""
+
+    status: dict[_Key, np.ndarray]
+    order: list[_Key]
+    candidates: np.ndarray
+    radius: np.ndarray
+    distance: np.ndarray
+
+
 class HeatMapper:
     """Signed distances of fixed target vertices (N, 3) to the outer surface of changing
     primitives, reusing everything that did not change since the last call (see the
-    module's docstring). Not thread-safe: use one per thread."""
+    module's docstring). Not thread-safe: use one per thread.
+
+    After an edit only the vertices that can see it are searched again: those whose
+    candidate samples changed (moved, buried, exposed), and those within their
+    candidates' reach of the box around the samples that appeared. The search is exact
+    (the k nearest samples), so the result is what a computation from nothing gives."""
 
     def __init__(self, vertices: np.ndarray, t_samples: int = T_SAMPLES) -> None:
         vertices = np.asarray(vertices, dtype=np.float64)
@@ -197,52 +213,129 @@ class HeatMapper:
         self._samples: dict[_Key, BoundarySamples] = {}
         self._inside: dict[_Key, np.ndarray] = {}  # key -> (N,) bool at the vertices
         self._pairs: dict[tuple[_Key, _Key], np.ndarray] = {}  # (i, j) -> i's samples in j
+        self._last: _Nearest | None = None
+        self.searched = 0  # vertices searched by the last call (for benchmarks)
 
     def compute(self, primitives: Sequence[SweepPrimitive]) -> HeatMap:
         """The heat map of `primitives` (all of them, hidden ones too: the map is of the
         abstraction, as the metrics are). Without primitives every vertex is missed by
         an infinite distance."""
         n = len(self.vertices)
-        if not primitives:
-            return HeatMap(np.full(n, np.inf), np.zeros(n, dtype=bool))
-        keys = [primitive_key(p) for p in primitives]
-        prims = dict(zip(keys, primitives, strict=True))
+        keys = list(dict.fromkeys(primitive_key(p) for p in primitives))
+        prims = {primitive_key(p): p for p in primitives}
         for key, prim in prims.items():
             if key not in self._samples:
                 self._samples[key] = boundary_samples(prim)
                 self._inside[key] = inside_primitive(self.vertices, prim, self.t_samples)
         inside = np.zeros(n, dtype=bool)
-        for key in prims:
+        for key in keys:
             inside |= self._inside[key]
-        points, normals, edges, limits, rims, spacing = self._outer_samples(prims)
-        self._forget(set(prims))
-        if not len(points):  # every sample buried: identical copies stacked, say
+        status = {key: self._status(key, prims) for key in keys}
+        self._forget(set(keys))
+        order = [k for k in keys if np.any(status[k])]
+        arrays = self._gather(order, status)
+        if not len(arrays[0]):  # nothing, or every sample buried (identical copies)
+            self._last = None
+            self.searched = 0
             return HeatMap(np.where(inside, -0.0, np.inf), inside)
-        distance = _distance_to_samples(self.vertices, points, normals, edges, limits,
-                                        rims, spacing)
-        return HeatMap(np.where(inside, -distance, distance), inside)
+        last = self._update(order, status, arrays)
+        self._last = last
+        return HeatMap(np.where(inside, -last.distance, last.distance), inside)
 
-    def _outer_samples(self, prims: dict[_Key, SweepPrimitive]
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The samples of every primitive that lie in no other one: points (M, 3),
+    def _status(self, key: _Key, prims: dict[_Key, SweepPrimitive]) -> np.ndarray:
+        """(M,) int8 of a primitive's samples: 0 inside another primitive, 1 on the
+        boundary, 2 on it but next to a buried sample (no tangent planes: they would reach
+        over surface that is not the boundary, where another primitive crosses)."""
+        s = self._samples[key]
+        buried = np.zeros(len(s.points), dtype=bool)
+        for other, prim in prims.items():
+            if other == key:  # also an exact duplicate: its surface is the same boundary
+                continue
+            if (key, other) not in self._pairs:
+                self._pairs[(key, other)] = inside_primitive(s.points, prim, self.t_samples)
+            buried |= self._pairs[(key, other)]
+        return np.where(buried, 0, np.where(s.near(buried), 2, 1)).astype(np.int8)
+
+    def _gather(self, order: list[_Key], status: dict[_Key, np.ndarray]
+                ) -> tuple[np.ndarray, ...]:
+        """The boundary samples of `order`'s primitives, concatenated: points (M, 3),
         normals (M, 2, 3), edges (M, 2, 3), limits (M, 2), rims (M, 3), spacing (M,)."""
         parts = []
-        for ki in prims:
-            s = self._samples[ki]
-            buried = np.zeros(len(s.points), dtype=bool)
-            for kj, pj in prims.items():
-                if kj == ki:  # also an exact duplicate: its surface is the same boundary
-                    continue
-                if (ki, kj) not in self._pairs:
-                    self._pairs[(ki, kj)] = inside_primitive(s.points, pj, self.t_samples)
-                buried |= self._pairs[(ki, kj)]
-            keep = ~buried
-            # Next to a buried sample the tangent plane would reach over surface that is
-            # not the boundary (where another primitive crosses): no planes there.
-            limits = np.where(s.near(buried)[:, None], -np.inf, s.limits)
+        for key in order:
+            s, st = self._samples[key], status[key]
+            keep = st > 0
+            limits = np.where((st == 2)[:, None], -np.inf, s.limits)
             parts.append((s.points[keep], s.normals[keep], s.edges[keep], limits[keep],
                           s.rims[keep], np.full(int(keep.sum()), s.spacing)))
-        return tuple(np.concatenate(c) for c in zip(*parts, strict=True))  # type: ignore[return-value]
+        if not parts:
+            return (np.zeros((0, 3)),)
+        return tuple(np.concatenate(c) for c in zip(*parts, strict=True))
+
+    def _update(self, order: list[_Key], status: dict[_Key, np.ndarray],
+                arrays: tuple[np.ndarray, ...]) -> _Nearest:
+        """Search the vertices that an edit can have changed (all of them the first time)
+        and carry the others' candidates over."""
+        points = arrays[0]
+        k = min(NEAREST, len(points))
+        last = self._last
+        n = len(self.vertices)
+        if last is None or last.candidates.shape[1] != k:
+            todo = np.arange(n)
+            candidates = np.zeros((n, k), dtype=np.int64)
+            radius, distance = np.zeros(n), np.zeros(n)
+        else:
+            moved, appeared, where = self._changes(last, order, status)
+            gone = moved[last.candidates].any(axis=1)
+            if len(appeared):
+                lo, hi = points[appeared].min(axis=0), points[appeared].max(axis=0)
+                to_box = np.linalg.norm(np.maximum(np.maximum(lo - self.vertices,
+                                                              self.vertices - hi), 0.0),
+                                        axis=1)
+                gone |= to_box <= last.radius
+            todo = np.flatnonzero(gone)
+            candidates = where[last.candidates]
+            radius, distance = last.radius.copy(), last.distance.copy()
+        self.searched = len(todo)
+        if len(todo):
+            tree = cKDTree(points, leafsize=32, balanced_tree=False, compact_nodes=False)
+            found, nearest = tree.query(self.vertices[todo], k=k, workers=-1)
+            nearest = nearest.reshape(len(todo), k)
+            candidates[todo] = nearest
+            radius[todo] = np.asarray(found).reshape(len(todo), k)[:, -1]
+            distance[todo] = _estimate(self.vertices[todo], nearest, *arrays)
+        return _Nearest(status, order, candidates, radius, distance)
+
+    def _changes(self, last: _Nearest, order: list[_Key], status: dict[_Key, np.ndarray]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Between the last computation and this one: `moved` (M_last,) bool, the last
+        boundary samples that are gone or changed; `appeared`, indices of this one's
+        samples that are new or changed; `where` (M_last,), each last sample's index now
+        (-1 if moved)."""
+        now: dict[_Key, np.ndarray] = {}  # key -> index now of each of its samples, or -1
+        appeared, offset = [], 0
+        for key in order:
+            st = status[key]
+            index = np.full(len(st), -1, dtype=np.int64)
+            kept = np.flatnonzero(st > 0)
+            index[kept] = offset + np.arange(len(kept))
+            before = last.status.get(key)
+            fresh = st > 0 if before is None else (st > 0) & (st != before)
+            appeared.append(index[fresh])
+            now[key] = index
+            offset += len(kept)
+        moved, where = [], []
+        for key in last.order:
+            st = last.status[key]
+            kept = np.flatnonzero(st > 0)
+            if key in now and key in status:
+                same = status[key][kept] == st[kept]
+                index = np.where(same, now[key][kept], -1)
+            else:
+                index = np.full(len(kept), -1, dtype=np.int64)
+            moved.append(index < 0)
+            where.append(index)
+        return (np.concatenate(moved), np.concatenate(appeared),
+                np.concatenate(where))
 
     def _forget(self, keep: set[_Key]) -> None:
         """Drop what belongs to primitives that are gone (a drag makes one per move)."""
@@ -253,24 +346,15 @@ class HeatMapper:
             del self._pairs[pair]
 
 
-def _distance_to_samples(vertices: np.ndarray, points: np.ndarray, normals: np.ndarray,
-                         edges: np.ndarray, limits: np.ndarray, rims: np.ndarray,
-                         spacing: np.ndarray) -> np.ndarray:
+def _estimate(vertices: np.ndarray, nearest: np.ndarray, points: np.ndarray,
+              normals: np.ndarray, edges: np.ndarray, limits: np.ndarray, rims: np.ndarray,
+              spacing: np.ndarray) -> np.ndarray:
     """Unsigned distance (N,) of vertices (N, 3) to the surface sampled by points (M, 3)
     with normals and edges (M, 2, 3), limits (M, 2), rims (M, 3) and spacing (M,) (see
-    BoundarySamples): over the NEAREST nearest samples, the least distance to a sample's
-    tangent plane where the foot lies on its patch, else to the rim's tangent line at a
-    rim sample, else to the sample itself (inside a convex edge the nearest sample can be
-    on the farther face).
-
-    The tree keeps each node's full box (compact_nodes=False): samples on a surface
-    leave shrunk boxes thin and the search slow (5x here); eps lets the search take a
-    sample within NEAREST_EPS of the nearest distance, a relative error the tangent plane
-    mostly removes again."""
-    tree = cKDTree(points, leafsize=32, balanced_tree=False, compact_nodes=False)
-    k = min(NEAREST, len(points))
-    _, nearest = tree.query(vertices, k=k, eps=NEAREST_EPS, workers=-1)
-    nearest = nearest.reshape(len(vertices), k)
+    BoundarySamples), over each vertex's candidate samples nearest (N, k): the least
+    distance to a candidate's tangent plane where the foot lies on its patch, else to the
+    rim's tangent line at a rim sample, else to the sample itself (inside a convex edge
+    the nearest sample can be on the farther face, hence several candidates)."""
     offset = vertices[:, None, :] - points[nearest]  # (N, k, 3)
     reach = spacing[nearest]  # (N, k)
     square = np.einsum("ijk,ijk->ij", offset, offset)
