@@ -395,8 +395,10 @@ def _cores() -> int:
 
 
 def _cmd_train_sweeper(args: argparse.Namespace) -> int:
+    from sweepedit.fitting.sweepers import NEURAL_WEIGHTS
     from sweepedit.fitting.train_sweeper import train_sweeper
 
+    args.output = args.output or str(NEURAL_WEIGHTS)
     train_sweeper(args.output, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
                   seed=args.seed, resume=args.resume)
     print(f"weights -> {args.output}")
@@ -576,7 +578,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("train-sweeper", help="train the neural sweeper on random sweeps")
-    p.add_argument("-o", "--output", default="resources/sweeper_neural.pt")
+    p.add_argument("-o", "--output", default=None,
+                   help="weights file (default: the packaged sweepedit/resources/"
+                        "sweeper_neural.pt, which the neural sweeper loads)")
     p.add_argument("--steps", type=int, default=20000)
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--lr", type=float, default=1e-3)

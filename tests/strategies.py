@@ -19,7 +19,7 @@ def is_valid(p: SweepPrimitive) -> bool:
     return bool(np.min(np.linalg.norm(np.diff(p.control_points, axis=0), axis=1)) > 1e-3)
 
 
-# Random valid primitives over the whole ranges of DESIGN.md, tight bends included:
+# Random valid primitives over the whole ranges of docs/primitive.md, tight bends included:
 # 3 to 5 control points in [-0.5, 0.5]^3.
 coord = st.floats(-0.5, 0.5, allow_nan=False)
 primitives = st.builds(

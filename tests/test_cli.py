@@ -94,8 +94,8 @@ def test_bad_points_and_unknown_mesh_format(params_file: Path, tmp_path: Path, c
 
 
 def test_eval_prints_json_last(tmp_path: Path, shared_dir: Path, capsys) -> None:
-    # The official result for "eight" under DESIGN.md's protocol: IoU 0.64, CD-L1 0.0178,
-    # F1@0.05 0.97.
+    # The official result for "eight" under the quality protocol (docs/quality.md): IoU 0.64,
+    # CD-L1 0.0178, F1@0.05 0.97.
     code = run("eval", shared_dir / "sweepnet_params" / "eight.txt",
                shared_dir / "shapes" / "eight.stl", "--json")
     assert code == 0

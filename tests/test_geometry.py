@@ -165,7 +165,7 @@ def test_frames_are_orthonormal_and_do_not_twist(p: SweepPrimitive) -> None:
 @pytest.mark.parametrize("offset", [1e-3, 1e-6, 1e-9, 1e-12])
 def test_hairpin_frame_turns_about_the_plane_normal(offset: float) -> None:
     # Out along -x and back to (0.5, offset, 0): the frame turns by nearly pi about z, so
-    # V = z stays (DESIGN.md's initial frame for a start along -x) and U = V x T.
+    # V = z stays (the initial frame of docs/primitive.md for a start along -x) and U = V x T.
     cps = np.array([[[0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.5, offset, 0.0]]])
     frames = axis_frames(cps, np.array([0.0, 1.0]))
     end_tangent = np.array([0.5, offset, 0.0]) / np.hypot(0.5, offset)

@@ -2,7 +2,7 @@
 
 Truths from outside the code under test: the exact inside test (its own root finding)
 decides on which side of the surface key points lie, torch.autograd.gradcheck checks
-the gradients against finite differences, and the ranges come from DESIGN.md.
+the gradients against finite differences, and the ranges come from docs/primitive.md.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The quality protocol (DESIGN.md section 3) against truths computed without the code under
+"""The quality protocol (docs/quality.md) against truths computed without the code under
 test: distances by hand, lattice counts, and the closed-form Chamfer distance of two coaxial
 cylinders."""
 

@@ -1,6 +1,6 @@
 """The mesh of the true solid (geometry/solid.py) against the exact inside test.
 
-The exact test (DESIGN.md section 1) is the independent truth: a point is inside when some
+The exact test (docs/primitive.md) is the independent truth: a point is inside when some
 profile plane through it holds it inside the scaled superellipse. The display tube fails
 it where a sweep folds onto itself; the solid mesh must not.
 """

@@ -102,8 +102,9 @@ def test_cylinder_and_box_in_closed_form(kind):
     x, y, z = q[0].unbind(-1)
     r = torch.sqrt(x * x + y * y)
     cyl_in, cyl_out = (r < 0.18) & (z.abs() < 0.28), (r > 0.22) | (z.abs() > 0.32)
-    # The frame's U axis of a tangent along z is world y (DESIGN.md initial frame), so a
-    # runs along y and b along x here: check with the superellipse in those coordinates.
+    # The frame's U axis of a tangent along z is world y (the initial frame of
+    # docs/primitive.md), so a runs along y and b along x here: check with the superellipse
+    # in those coordinates.
     lvl = (y.abs() / 0.25) ** 5 + (x.abs() / 0.1) ** 5
     box_in, box_out = (lvl < 0.7) & (z.abs() < 0.28), (lvl > 1.4) | (z.abs() > 0.32)
     for pred, inside, outside in ((occ[0], cyl_in, cyl_out), (occ[1], box_in, box_out)):

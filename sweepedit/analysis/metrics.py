@@ -1,4 +1,4 @@
-"""The one quality protocol of DESIGN.md section 3: IoU, CD-L1, CD-L2, F1@0.05, F1@0.01.
+"""The one quality protocol of docs/quality.md: IoU, CD-L1, CD-L2, F1@0.05, F1@0.01.
 
 Both the shape and the abstraction live in the normalised frame. IoU is volumetric on
 the cell centres of a 64^3 grid over [-0.5, 0.5]^3 (shape: generalised winding number
@@ -118,7 +118,7 @@ def shape_inside_grid(shape: Shape, resolution: int = RESOLUTION) -> np.ndarray:
 
 def evaluate(abstraction: Abstraction, shape: Shape, n_samples: int = N_SAMPLES,
              resolution: int = RESOLUTION, seed: int = 0) -> dict[str, float]:
-    """All metrics of DESIGN.md section 3 for an abstraction of a shape (normalised frame).
+    """All metrics of docs/quality.md for an abstraction of a shape (normalised frame).
 
     Returns iou, cd_l1, cd_l2, f1_0.05, f1_0.01 and n_primitives. Hidden primitives
     count too: the metric is of the abstraction, not of the current view.

@@ -18,8 +18,10 @@ EXAMPLE_NAME = "cactus.off"
 def example_path() -> Path | None:
     """The bundled example shape, if it ships with this installation."""
     here = Path(__file__).resolve()
-    for root in (here.parents[2], here.parents[1]):  # the repository, the package
-        candidate = root / "resources" / "examples" / EXAMPLE_NAME
+    # The repository's example, else the same file in the packaged benchmark set (what a
+    # `pip install` has).
+    for candidate in (here.parents[2] / "resources" / "examples" / EXAMPLE_NAME,
+                      here.parents[1] / "resources" / "benchmark" / EXAMPLE_NAME):
         if candidate.is_file():
             return candidate
     return None

@@ -1,6 +1,6 @@
 """The differentiable key point sampler: the neural sweeper's view of a primitive.
 
-Each primitive becomes 875 key points (DESIGN.md section 4): 125 on the axis at evenly
+Each primitive becomes 875 key points (docs/fitting.md): 125 on the axis at evenly
 spaced t in [0, 1], then 15 profile loops (at evenly spaced t in [0, 1], the first and last
 on the end caps' rims) of 50 points each (evenly spaced angles θ = 2πj/50 of the
 superellipse, starting at θ = 0 on the +U half-axis). Layout of the 875 points:

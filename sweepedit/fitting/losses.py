@@ -1,4 +1,4 @@
-"""SweepNet's losses (DESIGN.md section 4), each a small function over tensors.
+"""SweepNet's losses (docs/fitting.md), each a small function over tensors.
 
 Shapes: B shapes, K primitives, Q query points, M skeleton points, S axis samples.
 """

@@ -7,11 +7,11 @@ k scaling coefficients, laid out as
 
 i.e. the control points flattened point by point, then the profile (a, b, d), then the
 scaling coefficients s1..sk of f(t) = 1 + s1 t + ... + sk t^k in ascending powers of t
-(as in the parameter files of DESIGN.md section 2). With the defaults n = 3, k = 2,
+(as in the parameter files of docs/parameter-format.md). With the defaults n = 3, k = 2,
 P = 14.
 
 `ParamLayout` splits and joins such tensors, maps an unconstrained network output (logits)
-into the valid ranges of DESIGN.md section 1, and converts to and from
+into the valid ranges of docs/primitive.md, and converts to and from
 `sweepedit.geometry.model.SweepPrimitive`.
 """
 

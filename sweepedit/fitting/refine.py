@@ -33,7 +33,7 @@ on the biggest missed part when that part could add more. Each round is refined 
 pruned again and kept only if it raises the score.
 
 The score is the IoU over the labelled points (grid cells and near-surface samples) --
-the grid IoU of DESIGN.md section 3, with the thin parts that fall between cell centres
+the grid IoU of docs/quality.md, with the thin parts that fall between cell centres
 and the surface detail counted too -- plus `surface_weight` times the surface coverage:
 the share of the shape's surface samples that have a point of the union within `reach`.
 IoU alone is ruled by bulk: a ninth primitive's worth of body volume outweighs a whole
@@ -184,7 +184,7 @@ class ScoringPoints:
         return float(np.count_nonzero(hits) / len(hits))
 
     def grid_iou(self, covered: np.ndarray) -> float:
-        """IoU on the grid cells alone (DESIGN.md section 3) of covered (N,) bool."""
+        """IoU on the grid cells alone (docs/quality.md) of covered (N,) bool."""
         return iou((covered | self.locked)[: self.n_cells], self.labels[: self.n_cells])
 
     def boundary_cells(self, covered: np.ndarray, width: int) -> np.ndarray:

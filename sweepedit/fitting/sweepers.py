@@ -11,7 +11,7 @@ the layout of sweepedit.fitting.params (control points, a, b, d, s1..sk).
 that converges to it as its sharpness grows. `NeuralSweeper` is a compact POCO-like
 network over the primitive's 875 key points (sweepedit.fitting.keypoints), trained on
 random sweeps against the exact test (sweepedit.fitting.train_sweeper); its weights ship
-in resources/sweeper_neural.pt. `load_sweeper(kind)` builds the default of each kind.
+in sweepedit/resources/sweeper_neural.pt. `load_sweeper(kind)` builds the default of each kind.
 
 Both reuse the shared sweep math of sweepedit.geometry.sweep; neither has a copy of it.
 """
@@ -39,7 +39,7 @@ from sweepedit.fitting.params import DEFAULT_LAYOUT, ParamLayout
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import axis_frames, scaling_factor, superellipse_level
 
-RESOURCES = Path(__file__).resolve().parents[2] / "resources"
+RESOURCES = Path(__file__).resolve().parents[1] / "resources"  # package data
 NEURAL_WEIGHTS = RESOURCES / "sweeper_neural.pt"
 
 _EPS = 1e-9
@@ -547,7 +547,7 @@ def load_sweeper(kind: str = "analytic", weights: str | Path | None = None,
                  **kwargs: Any) -> Sweeper:
     """The default-configured sweeper of a kind: 'analytic' or 'neural'.
 
-    weights: for 'neural', the weights file (default resources/sweeper_neural.pt).
+    weights: for 'neural', the weights file (default sweepedit/resources/sweeper_neural.pt).
     kwargs: passed to AnalyticSweeper (e.g. sharpness, stations).
     """
     if kind == "analytic":

@@ -1,6 +1,6 @@
 """Training of the neural sweeper on random sweeps labelled by the exact inside test.
 
-Data: random primitives over the ranges of DESIGN.md section 1 (`random_sweeps`), each
+Data: random primitives over the ranges of docs/primitive.md (`random_sweeps`), each
 with labelled query points (`label_points`): half near the surface (points of the exact
 swept surface and caps, jittered), a quarter uniform in the primitive's bounding box and
 a quarter uniform in the cube [-0.6, 0.6]^3, labelled with
@@ -48,7 +48,7 @@ ProgressCallback = Callable[[int, int, dict[str, float]], None]
 
 def random_sweeps(rng: np.random.Generator, n: int, wild_fraction: float = 0.5,
                   log_uniform_size: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """n random primitives (n = 3 control points, k = 2) over the ranges of DESIGN.md.
+    """n random primitives (n = 3 control points, k = 2) over the ranges of docs/primitive.md.
 
     A share `wild_fraction` has its 3 control points uniform in [-0.5, 0.5]^3; the rest
     are shape-like: a start point in the cube, a random direction and length in

@@ -16,7 +16,7 @@ control points it is m = n - 2 quadratic segments, segment j covering t in [j/m,
   projection onto the new curve and tangent distance minimisation. The scaling polynomial is then
   refitted, by least squares, so that f follows the same part of the axis: each new
   parameter is matched to the old parameter at the same fraction of arclength.
-- Mirroring negates one coordinate. The frames' initial-frame rule (DESIGN.md section 1)
+- Mirroring negates one coordinate. The frames' initial-frame rule (docs/primitive.md)
   and parallel transport commute with a reflection through a coordinate plane up to the
   sign of U or V, and the superellipse is symmetric in both, so the mirrored control
   points with the same profile and scaling sweep exactly the mirrored solid.

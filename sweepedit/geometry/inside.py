@@ -1,4 +1,4 @@
-"""The exact inside test of DESIGN.md section 1: the ground truth for sweeps.
+"""The exact inside test of docs/primitive.md: the ground truth for sweeps.
 
 A point p is inside a primitive when, for some t in [0, 1], p lies in the profile plane
 at t (h(t) = (p - s(t)).T(t) = 0) and its in-plane coordinates, divided by f(t), fall

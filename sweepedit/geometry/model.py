@@ -1,6 +1,6 @@
 """The primitive and the abstraction as validated plain data (no Qt, no torch).
 
-A `SweepPrimitive` is one sweep solid (DESIGN.md section 1); an `Abstraction` is an
+A `SweepPrimitive` is one sweep solid (docs/primitive.md); an `Abstraction` is an
 ordered list of them plus the normalisation that maps them back to the original shape.
 Both are plain dataclasses: the app's document wraps them and adds change notifications.
 """
@@ -18,7 +18,7 @@ import numpy as np
 from sweepedit.errors import InvalidPrimitiveError
 from sweepedit.geometry.sweep import fold_vectors, superellipse
 
-# Parameter ranges of DESIGN.md section 1.
+# Parameter ranges of docs/primitive.md.
 A_RANGE = (0.01, 0.5)
 B_RANGE = (0.01, 0.5)
 DEGREE_RANGE = (0.3, 5.0)
@@ -163,7 +163,8 @@ class Normalization:
 
     @classmethod
     def from_bounds(cls, lower: np.ndarray, upper: np.ndarray) -> Normalization:
-        """The normalisation of DESIGN.md: box centre to the origin, longest side to 1."""
+        """The normalisation of docs/parameter-format.md: box centre to the origin, longest
+        side to 1."""
         lower = np.asarray(lower, dtype=np.float64)
         upper = np.asarray(upper, dtype=np.float64)
         extent = float(np.max(upper - lower))

@@ -1,4 +1,4 @@
-"""Meshes of the true solid of DESIGN.md section 1, for export and booleans.
+"""Meshes of the true solid of docs/primitive.md, for export and booleans.
 
 The display mesher (mesher.py) sweeps one tube of rings. Where the profile reaches past
 the axis' centre of curvature the rings cross and that tube turns inside-out locally:

@@ -1,4 +1,4 @@
-"""The sweep math of DESIGN.md section 1, written once for numpy and torch.
+"""The sweep math of docs/primitive.md, written once for numpy and torch.
 
 Every function takes arrays of either library (through array_api_compat) and returns
 arrays of the same library, so the mesher and the exact inside test (numpy, float64)
@@ -127,7 +127,7 @@ def _minimal_rotation(xp: Any, a: Any, b: Any, u: Any, v: Any,
 
 
 def initial_frame(T0: Any) -> tuple[Any, Any]:
-    """The frame at t = 0 as in DESIGN.md / the official SweepNet code.
+    """The frame at t = 0 as in docs/primitive.md and the official SweepNet code.
 
     T0: (..., 3) unit tangent -> U0, V0 (..., 3). W = (-T0.y, T0.x, 0), or (0, 1, 0)
     when that vanishes (tangent along z); V0 = normalize(T0 x W); U0 = V0 x T0.

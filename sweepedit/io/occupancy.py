@@ -1,6 +1,6 @@
 """The fitting grid: voxelisation, inside/outside tests and occupancy-labelled samples.
 
-Everything here works in the normalised frame (DESIGN.md section 2): the shape fits the cube
+Everything here works in the normalised frame (docs/parameter-format.md): the shape fits the cube
 [-0.5, 0.5]^3, which is cut into R^3 cells (R = 64 by default) of side h = 1/R. Cell (i, j, k)
 has its centre at ((i, j, k) + 0.5) * h - 0.5 and grids are indexed [ix, iy, iz].
 
@@ -8,7 +8,7 @@ Two grids are made for every shape:
 
 - the *winding* grid: a cell is inside when the generalised winding number of the surface at
   its centre is above 0.5 (|w| > 0.5, so inside-out meshes work as well). This is exactly the
-  inside test of the IoU protocol (DESIGN.md section 3).
+  inside test of the IoU protocol (docs/quality.md).
 - the *fitting* grid (`occupancy`): the winding grid plus thin-part voxels. A part thinner
   than a cell can hold no cell centre, so it would vanish from the winding grid (or survive
   as a dotted line) and neither the skeleton nor the fit would know it exists. The fitting

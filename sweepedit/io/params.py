@@ -1,6 +1,6 @@
 """Parameter files: sweepedit's JSON abstraction file and the official SweepNet text file.
 
-JSON (DESIGN.md section 2)::
+JSON (docs/parameter-format.md)::
 
     {"format": "sweepedit.abstraction", "version": 1,
      "normalization": {"center": [x, y, z], "scale": s},

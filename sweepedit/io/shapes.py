@@ -74,7 +74,7 @@ _DATA_ERRORS = (ValueError, KeyError, IndexError, struct.error, UnicodeDecodeErr
 
 @dataclass
 class Shape:
-    """A loaded shape in the normalised frame (DESIGN.md section 2).
+    """A loaded shape in the normalised frame (docs/parameter-format.md).
 
     path: the file; kind: "mesh" | "voxels" | "points"; sha256: of the file's bytes.
     normalization: original = normalised * scale + center.

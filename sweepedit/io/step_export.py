@@ -1,7 +1,7 @@
 """STEP export: every primitive as an exact, smooth B-rep solid (OpenCascade, optional).
 
-A primitive's side surface is S(t, θ) = s(t) + f(t) (x(θ) U(t) + y(θ) V(t)) (DESIGN.md
-section 1), linear in the profile point (x, y). So if one quadrant of the profile is a
+A primitive's side surface is S(t, θ) = s(t) + f(t) (x(θ) U(t) + y(θ) V(t))
+(docs/primitive.md), linear in the profile point (x, y). So if one quadrant of the profile is a
 planar B-spline with control points (x_k, y_k), the side surface over that quadrant is
 the tensor-product B-spline whose row k is the space curve C_k(t) = s(t) + f(t) (x_k U(t)
 + y_k V(t)), and only these curves need approximating along t. Each quadrant becomes
