@@ -506,3 +506,25 @@ def test_atomic_write_permissions(tmp_path: Path) -> None:
     atomic_write_text(path, "é")
     assert stat.S_IMODE(path.stat().st_mode) == 0o640  # a replaced file keeps its mode
     assert path.read_bytes() == "é".encode()
+
+
+def test_non_finite_record_values_are_written_as_null(tmp_path) -> None:
+    """A fit record's NaN or infinite number becomes null: the file stays strict JSON (a
+    bare NaN is not JSON), and it reads back."""
+    from sweepedit.geometry.model import Abstraction
+    from sweepedit.io.params import read_abstraction, write_abstraction
+
+    record = {"score": float("nan"), "best": [1.0, np.inf, np.float64(-np.inf)],
+              "ok": np.float32(0.5)}
+    abstraction = Abstraction([primitive()], fit=record)
+    path = tmp_path / "record.json"
+    write_abstraction(abstraction, path)
+
+    def refuse(constant: str) -> None:
+        raise AssertionError(f"bare {constant} in the file")
+
+    data = json.loads(path.read_text(), parse_constant=refuse)
+    assert data["fit"]["score"] is None
+    assert data["fit"]["best"] == [1.0, None, None]
+    assert data["fit"]["ok"] == 0.5
+    assert read_abstraction(path).fit["score"] is None

@@ -262,9 +262,26 @@ def _kind(path: PathLike) -> Literal["json", "txt"]:
 
 def dumps_abstraction(abstraction: Abstraction) -> str:
     """The JSON text of `abstraction` (UTF-8 ready, ends with a newline); no validation."""
-    text = json.dumps(abstraction_to_json(abstraction), indent=2, ensure_ascii=False,
-                      default=_json_default)
+    text = json.dumps(_plain_json(abstraction_to_json(abstraction)), indent=2,
+                      ensure_ascii=False, allow_nan=False, default=_json_default)
     return _compact_number_lists(text) + "\n"
+
+
+def _plain_json(value: Any) -> Any:
+    """value with numpy scalars and arrays as plain numbers and lists, and non-finite
+    numbers (a fit record's NaN score, say) as null: json would write bare NaN, which
+    is not JSON and which other readers and schema tools refuse."""
+    if isinstance(value, dict):
+        return {k: _plain_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain_json(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain_json(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def _json_default(value: Any) -> Any:
