@@ -133,7 +133,7 @@ def test_mirror_and_symmetric_editing_keep_the_pair_mirrored(qtbot, window,
     window.stack.push(SetControlPoints(0, ASYMMETRIC))
     window.doc.select(0)
     qtbot.keyClick(window.plotter, Qt.Key.Key_X, Qt.KeyboardModifier.ControlModifier
-                   | Qt.KeyboardModifier.ShiftModifier)  # Mirror X
+                   | Qt.KeyboardModifier.AltModifier)  # Mirror X
     assert len(window.doc) == 3 and window.doc.selected_indices == [2]
     assert_mirrored(window.doc, 0, 2, 0)
     assert window.doc.primitive(2).name == "bar mirror X"
