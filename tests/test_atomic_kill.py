@@ -44,11 +44,26 @@ def _mesh(seed: int) -> TriangleMesh:
     return TriangleMesh(vertices, np.asarray(sphere.faces), np.asarray(sphere.vertex_normals))
 
 
+def _slow_disk() -> None:
+    """From now on in this process, each fsync takes 40 ms more (a slow disk), so that a
+    good share of the random kills land while a temporary file is open -- the moment the
+    test is about -- and not only in the serialisation before it."""
+    fsync = os.fsync
+
+    def slow_fsync(fd: int) -> None:
+        fsync(fd)
+        time.sleep(0.04)
+
+    os.fsync = slow_fsync
+
+
 def _write_forever(params: Path, mesh: Path, contents: list[tuple[Abstraction, TriangleMesh]],
-                   first: int) -> None:
-    """The child: write version `first`, then the other, and so on until killed (it
-    never returns)."""
+                   first: int, started: int) -> None:
+    """The child: say so on the pipe `started`, then write version `first`, then the
+    other, and so on until killed (it never returns)."""
+    _slow_disk()
     try:
+        os.write(started, b"1")
         for i in range(10**9):
             abstraction, triangles = contents[(first + i) % 2]
             write_abstraction(abstraction, params)
@@ -61,13 +76,18 @@ def test_files_survive_sigkill_whole(tmp_path: Path):
     params, mesh = tmp_path / "doc.json", tmp_path / "doc.ply"
     contents = [(_abstraction(0), _mesh(0)), (_abstraction(1), _mesh(1))]
     known: dict[Path, list[bytes]] = {params: [], mesh: []}
-    start = time.perf_counter()
-    for abstraction, triangles in contents:  # the two complete versions of each file
-        write_abstraction(abstraction, params)
-        write_mesh(triangles, mesh)
-        known[params].append(params.read_bytes())
-        known[mesh].append(mesh.read_bytes())
-    cycle = (time.perf_counter() - start) / 2  # one write of both files
+    fsync = os.fsync
+    _slow_disk()  # as in the writer, so that `cycle` is its cycle
+    try:
+        start = time.perf_counter()
+        for abstraction, triangles in contents:  # the two complete versions of each file
+            write_abstraction(abstraction, params)
+            write_mesh(triangles, mesh)
+            known[params].append(params.read_bytes())
+            known[mesh].append(mesh.read_bytes())
+        cycle = (time.perf_counter() - start) / 2  # one write of both files
+    finally:
+        os.fsync = fsync
     assert known[params][0] != known[params][1] and known[mesh][0] != known[mesh][1]
     assert len(known[params][0]) > 500_000 and len(known[mesh][0]) > 500_000
     assert len(read_abstraction(params).primitives) == PRIMITIVES
@@ -78,9 +98,15 @@ def test_files_survive_sigkill_whole(tmp_path: Path):
     killed_mid_write = 0
     on_disk = 1
     for _ in range(KILLS):
+        started, ready = os.pipe()
         pid = os.fork()
         if pid == 0:  # the child starts with the version that is not on disk
-            _write_forever(params, mesh, contents, 1 - on_disk)
+            _write_forever(params, mesh, contents, 1 - on_disk, ready)
+        # The kill's moment counts from the child's first write, not from the fork,
+        # which takes long in a big process (the whole suite's).
+        os.read(started, 1)
+        os.close(started)
+        os.close(ready)
         time.sleep(rng.uniform(0.0, 1.5 * cycle))
         os.kill(pid, signal.SIGKILL)
         os.waitpid(pid, 0)

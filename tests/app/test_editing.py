@@ -288,11 +288,11 @@ def test_multi_select_edits_are_one_undo_step(qtbot, window, small_files) -> Non
     assert len(stack) == 1
     for p, q in zip(doc.primitives, before, strict=True):
         assert np.allclose(p.control_points - q.control_points, [0, 0, 0.05])
-    # Hide both (H), mirror both (Ctrl+Shift+Y), delete all (Ctrl+A, Delete): a step each.
+    # Hide both (H), mirror both (Ctrl+Alt+Y), delete all (Ctrl+A, Delete): a step each.
     qtbot.keyClick(window.plotter, Qt.Key.Key_H)
     assert not any(p.visible for p in doc.primitives) and len(stack) == 2
     qtbot.keyClick(window.plotter, Qt.Key.Key_Y, Qt.KeyboardModifier.ControlModifier
-                   | Qt.KeyboardModifier.ShiftModifier)
+                   | Qt.KeyboardModifier.AltModifier)
     assert len(doc) == 4 and doc.selected_indices == [2, 3] and len(stack) == 3
     qtbot.keyClick(window.plotter, Qt.Key.Key_A, Qt.KeyboardModifier.ControlModifier)
     assert doc.selected_indices == [0, 1, 2, 3]
