@@ -139,6 +139,7 @@ def main() -> int:
     w = MainWindow(settings=settings, preload_fit=False)
     w.report_error = lambda title, message: print(f"error: {title}: {message}")
     w.ask_save_changes = lambda: "discard"
+    w.ask_keep_primitives = lambda _name: "discard"  # opening section 5's shape
     w.resize(1600, 1000)
     w.show()
     spin(app, 0.5)
