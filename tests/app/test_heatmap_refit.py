@@ -135,7 +135,9 @@ def test_refit_refuses_nothing_selected_and_locked(qtbot, window, sphere_files) 
     assert window.open_path(sphere_files["params"])
     assert not window.refit_selection()
     window.doc.primitive(0).locked = True
-    assert not window.refit_selection([0])
+    window.doc.set_selection([0, 1])  # primary 1, with the locked 0 also selected
+    assert not window.refit_selection()
+    assert "locked" in window.statusBar().currentMessage()
     assert not window.fitting
 
 
