@@ -71,6 +71,22 @@ def _check_reachable(address: str, timeout: float = 5.0) -> None:
                              f"({exc.strerror or exc})") from None
 
 
+def _client_token_auth() -> None:
+    """Ray Client sends the cluster's auth token only when RAY_AUTH_MODE says "token";
+    unlike a local ray.init, it does not turn that on when a token is there (Ray 2.60:
+    the server answers "Authentication required" and the client times out). Left as
+    the user set it, if they did."""
+    if "RAY_AUTH_MODE" in os.environ:
+        return
+    try:
+        from ray._private.authentication.authentication_token_setup import (
+            maybe_enable_token_auth_if_token_available,
+        )
+    except ImportError:  # a Ray without token authentication
+        return
+    maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
+
+
 class InProcessEngine:
     """Runs each submitted shape in this process, one at a time, when waited for."""
 
@@ -148,6 +164,8 @@ class RayEngine:
         try:
             if address:
                 _check_reachable(address)
+                if address.startswith("ray://"):
+                    _client_token_auth()
                 self._ray.init(address=address, **quiet)
             else:
                 count = workers or max(1, machine_cores() // self._cpus)
