@@ -212,6 +212,26 @@ def test_a_mildly_folding_primitive_is_built_to_its_true_volume(tmp_path: Path) 
 
 
 @needs_occ
+def test_a_solid_the_writer_would_turn_inside_out_reads_back_with_its_volume(
+        tmp_path: Path) -> None:
+    # A primitive of the K = 8 fit of fertility whose sewn solid OpenCascade's STEP writer
+    # wrote inside out (volume read back negated): export_step reads the file back and
+    # writes such a solid reversed.
+    prim = SweepPrimitive([[-0.32306259870529175, -0.24519869685173035, -0.006246119737625122],
+                           [-0.29462337493896484, -0.2602313756942749, -0.004167109727859497],
+                           [-0.10264888405799866, -0.08027154207229614, 0.003976345062255859]],
+                          a=0.10043027251958847, b=0.09833808988332748,
+                          degree=2.2548627853393555,
+                          scaling=(0.49284476041793823, -0.49999991059303284), name="arm")
+    out = tmp_path / "arm.step"
+    export_step(Abstraction([prim]), out)
+    solids = _check(out)
+    estimate, error = _monte_carlo([prim], 300_000)
+    assert solid_volume(solids[0].shape) == pytest.approx(estimate, abs=0.01 * estimate
+                                                          + 4 * error)
+
+
+@needs_occ
 def test_cancel_writes_nothing(tmp_path: Path) -> None:
     out = tmp_path / "c.step"
     with pytest.raises(ExportCancelledError):

@@ -654,7 +654,48 @@ def _color(hex_color: str) -> Any:
 
 def _write_document(parts: Sequence[tuple[Any, str, str]], path: Path) -> None:
     """Write shapes with names and colours [(shape, name, '#rrggbb')] as an AP214 STEP
-    file, atomically (written beside in a temporary folder first, then moved in whole)."""
+    file, atomically (written in a temporary folder first, then moved in whole).
+
+    The file is read back before it replaces `path`, and each solid's volume compared with
+    the one checked in memory: OpenCascade's writer turns a few sewn solids inside out
+    (the same volume, negated, on reading; seen on 1 of 378 primitives). Such a solid is
+    written reversed instead; anything else that differs is an error, not a file."""
+    from OCP.TopoDS import TopoDS
+
+    parts = list(parts)
+    expected = [solid_volume(shape) for shape, _, _ in parts]
+    with tempfile.TemporaryDirectory(prefix="sweepedit-step-") as folder:
+        tmp = Path(folder) / "export.step"
+        for _attempt in range(2):
+            _write_step(parts, tmp, path)
+            read = read_step(tmp)
+            if len(read) != len(parts):
+                raise StepExportError(f"{path}: {len(read)} solids read back from the "
+                                      f"STEP file written, not {len(parts)}; not written")
+            volumes = [solid_volume(r.shape) for r in read]
+            flipped = [i for i, (v, e) in enumerate(zip(volumes, expected, strict=True))
+                       if abs(v + e) <= 1e-6 * abs(e)]
+            wrong = [parts[i][1] for i, (v, e) in enumerate(zip(volumes, expected,
+                                                                strict=True))
+                     if i not in flipped and not abs(v - e) <= 1e-6 * abs(e)]
+            if wrong:
+                raise StepExportError(f"{path}: {', '.join(wrong)} read back from the STEP "
+                                      "file with another volume than was checked; not "
+                                      "written")
+            if not flipped:
+                break
+            for i in flipped:
+                shape, name, color = parts[i]
+                parts[i] = (TopoDS.Solid(shape.Reversed()), name, color)
+        else:
+            raise StepExportError(f"{path}: a solid reads back inside out from the STEP "
+                                  "file however it is written; not written")
+        data = tmp.read_bytes()
+    atomic_write_bytes(path, data)
+
+
+def _write_step(parts: Sequence[tuple[Any, str, str]], tmp: Path, path: Path) -> None:
+    """Write [(shape, name, '#rrggbb')] as an AP214 STEP file at tmp (not atomic)."""
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.STEPCAFControl import STEPCAFControl_Writer
     from OCP.STEPControl import STEPControl_AsIs
@@ -675,12 +716,8 @@ def _write_document(parts: Sequence[tuple[Any, str, str]], path: Path) -> None:
     writer.SetColorMode(True)
     if not writer.Transfer(doc, STEPControl_AsIs):
         raise StepExportError(f"{path}: OpenCascade could not translate the solids to STEP")
-    with tempfile.TemporaryDirectory(prefix="sweepedit-step-") as folder:
-        tmp = Path(folder) / "export.step"
-        if writer.Write(str(tmp)) != IFSelect_RetDone or not tmp.is_file():
-            raise StepExportError(f"{path}: OpenCascade could not write the STEP file")
-        data = tmp.read_bytes()
-    atomic_write_bytes(path, data)
+    if writer.Write(str(tmp)) != IFSelect_RetDone or not tmp.is_file():
+        raise StepExportError(f"{path}: OpenCascade could not write the STEP file")
 
 
 @dataclass
