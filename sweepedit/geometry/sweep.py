@@ -187,34 +187,43 @@ def axis_frames(control_points: Any, t: Any) -> AxisFrames:
     return AxisFrames(points, U, V, T)
 
 
+def _bezier_points(a0: Any, a1: Any, a2: Any, u: Any) -> Any:
+    """Points of quadratic Bezier segments a0, a1, a2 (K, M, 3) at local parameters
+    u (M,) -> (K, M, 3)."""
+    u3 = u[None, :, None]
+    return (1.0 - u3) ** 2 * a0 + 2.0 * u3 * (1.0 - u3) * a1 + u3**2 * a2
+
+
 def _points_and_tangents(xp: Any, a0: Any, a1: Any, a2: Any, u: Any) -> tuple[Any, Any]:
     """Points and unit tangents of quadratic Bezier segments a0, a1, a2 (K, M, 3) at local
     parameters u (M,) -> each (K, M, 3)."""
     u3 = u[None, :, None]
-    points = (1.0 - u3) ** 2 * a0 + 2.0 * u3 * (1.0 - u3) * a1 + u3**2 * a2
     deriv = (1.0 - u3) * (a1 - a0) + u3 * (a2 - a1)
-    return points, _segment_tangent(xp, deriv, a2 - a0, a1 - a0)
+    return _bezier_points(a0, a1, a2, u), _segment_tangent(xp, deriv, a2 - a0, a1 - a0)
+
+
+def _segments_at(control_points: Any, t: Any) -> tuple[Any, Any, Any, Any, Any]:
+    """The Bezier segment holding each t and the local parameter there:
+    control_points (K, n, 3), t (M,) -> xp, a0, a1, a2 (K, M, 3), u (M,)."""
+    xp = array_namespace(control_points, t)
+    p0, p1, p2 = bezier_segments(control_points)
+    j, u = _segment_index(xp, t, p0.shape[1])
+    a0, a1, a2 = (xp.take(p, j, axis=1) for p in (p0, p1, p2))
+    return xp, a0, a1, a2, u
 
 
 def axis_points_tangents(control_points: Any, t: Any) -> tuple[Any, Any]:
     """Points and unit tangents of the axes, the same as axis_frames' but without the
     frames (the exact inside test's root search needs only the planes):
     control_points (K, n, 3), t (M,) -> each (K, M, 3)."""
-    xp = array_namespace(control_points, t)
-    p0, p1, p2 = bezier_segments(control_points)
-    j, u = _segment_index(xp, t, p0.shape[1])
-    a0, a1, a2 = (xp.take(p, j, axis=1) for p in (p0, p1, p2))
+    xp, a0, a1, a2, u = _segments_at(control_points, t)
     return _points_and_tangents(xp, a0, a1, a2, u)
 
 
 def axis_points(control_points: Any, t: Any) -> Any:
     """Points of the axes: control_points (K, n, 3), t (M,) -> (K, M, 3)."""
-    xp = array_namespace(control_points, t)
-    p0, p1, p2 = bezier_segments(control_points)
-    j, u = _segment_index(xp, t, p0.shape[1])
-    u3 = u[None, :, None]
-    a0, a1, a2 = (xp.take(p, j, axis=1) for p in (p0, p1, p2))
-    return (1.0 - u3) ** 2 * a0 + 2.0 * u3 * (1.0 - u3) * a1 + u3**2 * a2
+    _, a0, a1, a2, u = _segments_at(control_points, t)
+    return _bezier_points(a0, a1, a2, u)
 
 
 def scaling_factor(scaling: Any, t: Any) -> Any:

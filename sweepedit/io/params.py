@@ -285,11 +285,7 @@ def _plain_json(value: Any) -> Any:
 
 
 def _json_default(value: Any) -> Any:
-    # Fit records and extras often carry numpy scalars/arrays and paths; store plain JSON.
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
+    # What _plain_json leaves: paths (fit records and extras carry them) as strings.
     if isinstance(value, os.PathLike):
         return os.fspath(value)
     raise TypeError(f"cannot store a {type(value).__name__} in a parameter file: {value!r}")
