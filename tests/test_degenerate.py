@@ -26,7 +26,7 @@ CORPUS = Path(__file__).parent / "data" / "degenerate"
 CASES = json.loads((CORPUS / "cases.json").read_text())["cases"]
 ERRORS = sorted(name for name, case in CASES.items() if "error" in case)
 LOADS = sorted(name for name, case in CASES.items() if "loads" in case)
-FAIL_FAST_S = 2.0
+FAIL_FAST_S = 3.0  # a refusal, not a fit: ms idle; room for a loaded runner
 R = occ.DEFAULT_RESOLUTION
 
 
@@ -129,7 +129,7 @@ def test_fit_refuses_a_shape_that_encloses_nothing_at_once(warm_cli):
     start = time.perf_counter()
     with pytest.raises(errors.DegenerateShapeError, match=r"triangle.off: .*0 of the 64"):
         fit_abstraction(shape, FitSettings(primitives=2))
-    assert time.perf_counter() - start < 0.5
+    assert time.perf_counter() - start < 2.0  # refused before any fitting
 
 
 def test_fit_of_a_box_1e_12_across_keeps_its_frame(tmp_path: Path, capsys):

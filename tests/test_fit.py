@@ -168,7 +168,7 @@ def test_time_limit_returns_a_valid_abstraction_in_time(arch_shape) -> None:
                                                time_limit=1.0))
     elapsed = time.perf_counter() - start
     assert result.timed_out and not result.cancelled
-    assert elapsed < 2.0, elapsed
+    assert elapsed < 1.0 + 2.5, elapsed  # 100000 iterations would take many minutes
     assert len(result.abstraction) >= 1
     for p in result.abstraction.primitives:
         p.validate()
