@@ -280,14 +280,14 @@ def test_fit_time_limit_returns_in_time_with_a_valid_file(tmp_path: Path, capsys
     cactus = Path(__file__).resolve().parents[1] / "resources" / "examples" / "cactus.off"
     out = tmp_path / "cactus.json"
     start = time.perf_counter()
-    assert run("fit", cactus, "-o", out, "--time-limit", "2", "--quiet") == 0
+    assert run("fit", cactus, "-o", out, "--time-limit", "3", "--quiet") == 0
     elapsed = time.perf_counter() - start
     abstraction = read_abstraction(out)
     # The limit cut the fit short (a full one runs several times as long), and the command
     # returned soon after it: loading, the best result's scoring and the write add about a
     # second idle; the bound leaves room for a loaded 2-core runner.
     assert abstraction.fit["timed_out"] is True
-    assert elapsed <= 2 + 4.0, elapsed
+    assert elapsed <= 3 + 2.0, elapsed  # idle: 3.0-3.1 s
     assert len(abstraction) >= 1
     for p in abstraction.primitives:
         p.validate()

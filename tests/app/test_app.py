@@ -1087,9 +1087,11 @@ def test_first_fit_of_the_session_never_stalls_the_event_loop() -> None:
         assert result["first_abstraction_s"] is not None and result["primitives"] > 0
         assert result["first_frame_s"] < 30
         gaps.append(result["max_gap_ms"])
-    # What this test holds is behaviour: the GUI thread keeps ticking while torch and the
-    # fitting code load, instead of the old freeze of ~4 s (torch imported on the GUI
-    # thread). The 100 ms target is a speed figure and lives in benchmarks/bench_app.py
-    # (BENCHMARKS.md): on a shared 2-core runner one tick now and then waits 100-150 ms
-    # for the CPU (CI measured 63-117 ms on one build), which says nothing about the app.
+    # The app's own stalls (torch's shared libraries loading while the fit thread holds the
+    # GIL, software-GL repaints) measure 40-60 ms idle. On a shared 2-core runner a tick
+    # now and then also waits 100-150 ms for the CPU (CI measured 63, 102 and 117 ms on one
+    # build), which says nothing about the app: the best of three fresh sessions is held to
+    # the 100 ms target, and every one far below the old ~4 s freeze (torch imported on the
+    # GUI thread). The idle median over the 30 shapes is benchmarks/bench_app.py's.
+    assert min(gaps) <= 100, gaps
     assert max(gaps) <= 750, gaps
