@@ -11,7 +11,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import (
@@ -24,6 +23,8 @@ from sweepedit.geometry.sweep import (
 T_SAMPLES = 256
 REFINE_STEPS = 2
 _CHUNK = 1 << 15
+# Every how many axis samples the tube filter tests against (see _inside_primitive).
+_COARSE = 8
 
 
 def _plane_offset(points: np.ndarray, cps: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -74,12 +75,21 @@ def _inside_primitive(points: np.ndarray, columns: np.ndarray, primitive: SweepP
         box &= columns[axis] <= hi[axis]
     in_box = np.flatnonzero(box)
     # Only points within the largest profile radius (plus the sample gap) of the axis
-    # can be inside: this cuts the box down to a tube before the dense work below.
-    gap = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    # can be inside: this cuts the box down to a tube before the dense work below. The
+    # tube is tested against every COARSE-th axis sample, widened by the most any sample
+    # lies from its nearest coarse one (half the polyline between two coarse samples):
+    # one small matmul, several times cheaper than a k-d tree of all samples.
+    gap = np.linalg.norm(np.diff(centres, axis=0), axis=1)  # (T-1,)
     reach = scaling_factor(scaling, t)[0] * np.hypot(profile[0, 0], profile[0, 1])
-    bound = float(reach.max() + gap.max()) + 1e-9
-    dist, _ = cKDTree(centres).query(points[in_box], k=1, distance_upper_bound=bound)
-    candidates = in_box[np.isfinite(dist)]
+    coarse_at = np.unique(np.append(np.arange(0, t_samples, _COARSE), t_samples - 1))
+    arc = np.concatenate([[0.0], np.cumsum(gap)])
+    widen = float(np.max(np.diff(arc[coarse_at]))) / 2.0
+    bound = float(reach.max() + gap.max()) + widen + 1e-9
+    coarse = centres[coarse_at]  # (C, 3)
+    p_box = points[in_box]
+    d2 = ((p_box * p_box).sum(axis=1)[:, None] - 2.0 * (p_box @ coarse.T)
+          + (coarse * coarse).sum(axis=1)[None, :])
+    candidates = in_box[d2.min(axis=1) <= bound * bound]
     offsets = np.einsum("ij,ij->i", centres, tangents)  # s(t).T(t), (T,)
     # A plane crossing at t can only be inside if p is within reach of s(t): the
     # largest profile radius there plus the gap to the next sample.
@@ -93,15 +103,18 @@ def _inside_primitive(points: np.ndarray, columns: np.ndarray, primitive: SweepP
         p = points[idx]
         h = np.hstack([p, np.ones((len(idx), 1))]).astype(np.float32) @ plane_mat  # (C, T)
         sign = h >= 0.0
-        rows, cols = np.nonzero(sign[:, :-1] != sign[:, 1:])
+        # One flat index list, split after: several times faster than a 2-D nonzero.
+        rows, cols = np.divmod(np.flatnonzero(sign[:, :-1] != sign[:, 1:]), t_samples - 1)
         d = p[rows] - centres[cols]
         near = np.einsum("ij,ij->i", d, d) <= reach2[cols]
         rows, cols = rows[near], cols[near]
         if rows.size == 0:
             continue
         pr = p[rows]
-        roots = _refine_roots(pr, cps, t[cols], t[cols + 1],
-                              _plane_offset(pr, cps, t[cols]), _plane_offset(pr, cps, t[cols + 1]))
+        # h at the bracket's ends in float64, from the samples' table (the curve there).
+        h0 = np.einsum("ij,ij->i", pr, tangents[cols]) - offsets[cols]
+        h1 = np.einsum("ij,ij->i", pr, tangents[cols + 1]) - offsets[cols + 1]
+        roots = _refine_roots(pr, cps, t[cols], t[cols + 1], h0, h1)
         hit = _inside_profile_at(pr, cps, profile, scaling, roots)
         result[idx[rows[hit]]] = True
     return result
