@@ -77,7 +77,10 @@ class RefineSettings:
     to the score to be kept."""
 
     iterations: int = 300
-    learning_rate: float = 0.02
+    # Adam's step: 0.02 -> 0.04 raised the 30 benchmark shapes at K = 8 from IoU 0.839 to
+    # 0.847 and F1@0.01 0.802 -> 0.822 in the same steps (0.03, 0.05 on 8 shapes: below,
+    # level); fewer steps at 0.04 lost more than that.
+    learning_rate: float = 0.04
     start_sharpness: float = 100.0
     sharpness_gain: float = 8.0
     # More near-surface samples than grid cells: the surface's fine detail (F1@0.01)

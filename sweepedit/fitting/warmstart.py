@@ -104,13 +104,19 @@ def _split_tolerance(radii: np.ndarray) -> float:
     return 0.25 * float(np.median(radii)) + 0.5 * VOXEL
 
 
+def _volume(piece: tuple[np.ndarray, np.ndarray]) -> float:
+    """What a (points (M, 3), radii (M,)) piece carries: length times squared median
+    radius, the radius floored at a voxel so that thin limbs count for their length."""
+    return float(_arc_length(piece[0])[-1] * max(float(np.median(piece[1])), VOXEL) ** 2)
+
+
 def _pieces(branches: Sequence, k: int,
             n_control_points: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """(points (M, 3), radii (M,)) pieces: the k branches that carry the most volume, the
-    worst-fitting one split in two while there are fewer than k and one axis cannot follow
-    it to within a quarter of its radius plus half a voxel (a straight handle stays one
-    sweep). Closed loops are cut
-    in three first, since one quadratic axis cannot close on itself."""
+    worst-fitting one split in two while one axis cannot follow it to within a quarter of
+    its radius plus half a voxel (a straight handle stays one sweep) and there are fewer
+    than k, or a piece of under a quarter of its volume can give up its primitive. Closed
+    loops are cut in three first, since one quadratic axis cannot close on itself."""
     pieces: list[tuple[np.ndarray, np.ndarray]] = []
     for br in branches:
         pts, rad = np.asarray(br.points, float), np.asarray(br.radii, float)
@@ -125,19 +131,29 @@ def _pieces(branches: Sequence, k: int,
             pieces.append((pts, rad))
     # Keep the pieces that carry the most volume (length x squared radius); radii below
     # a voxel are floored so that thin limbs still count for their length.
-    pieces.sort(key=lambda pr: -_arc_length(pr[0])[-1] * max(float(np.median(pr[1])),
-                                                              VOXEL) ** 2)
+    pieces.sort(key=lambda pr: -_volume(pr))
     pieces = pieces[:k]
-    while 0 < len(pieces) < k:
+    for _ in range(4 * k):  # each round splits a piece; the cap only guards the loop
         excess = [axis_fit_error(p, n_control_points) - _split_tolerance(r)
                   if len(p) >= 2 * MIN_PIECE_POINTS else -np.inf for p, r in pieces]
-        longest = int(np.argmax(excess))
-        if excess[longest] <= 0.0:
+        worst = int(np.argmax(excess)) if pieces else 0
+        if not pieces or excess[worst] <= 0.0:
             break
-        pts, rad = pieces[longest]
+        if len(pieces) >= k:
+            # At k pieces, a small piece gives its primitive to the worst-followed one
+            # when it carries under a quarter of that one's volume: a nub at a junction
+            # (eight: 10 % of a loop) is worth less than the half of a loop that one
+            # axis cannot follow.
+            volumes = [_volume(pr) if i != worst else np.inf for i, pr in enumerate(pieces)]
+            smallest = int(np.argmin(volumes))
+            if volumes[smallest] >= 0.25 * _volume(pieces[worst]):
+                break
+            pieces.pop(smallest)
+            worst -= smallest < worst
+        pts, rad = pieces[worst]
         mid = len(pts) // 2
         # Overlap by one point so the halves meet.
-        pieces[longest:longest + 1] = [(pts[:mid + 1], rad[:mid + 1]), (pts[mid:], rad[mid:])]
+        pieces[worst:worst + 1] = [(pts[:mid + 1], rad[:mid + 1]), (pts[mid:], rad[mid:])]
     return pieces
 
 
