@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-from array_api_compat import array_namespace
+from array_api_compat import array_namespace, is_numpy_namespace
 
 # Keeps divisions and powers finite (and their gradients) at degenerate points.
 _EPS = 1e-9
@@ -35,6 +35,10 @@ class AxisFrames(NamedTuple):
 
 
 def _dot(xp: Any, u: Any, v: Any) -> Any:
+    if is_numpy_namespace(xp):
+        # Written out for numpy, whose reduction over a last axis of 3 is 4x slower (the
+        # exact inside test's root search and frames); torch's sum is the faster there.
+        return u[..., 0:1] * v[..., 0:1] + u[..., 1:2] * v[..., 1:2] + u[..., 2:3] * v[..., 2:3]
     return xp.sum(u * v, axis=-1, keepdims=True)
 
 
