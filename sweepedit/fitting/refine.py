@@ -144,6 +144,7 @@ class ScoringPoints:
         self.locked = (inside_primitives(self.points, locked).any(axis=0) if locked
                        else np.zeros(len(self.points), dtype=bool))
         self.surface_weight = surface_weight if surface is not None and len(surface) else 0.0
+        self._target_bands: dict[int, np.ndarray] = {}
         self.reach_matrix = (_reach_matrix(np.asarray(surface, dtype=np.float64), self.points,
                                            reach) if self.surface_weight else None)
 
@@ -198,11 +199,16 @@ class ScoringPoints:
         moving it."""
         union = covered[: self.n_cells].reshape(self.grid_target.shape) | self.locked[
             : self.n_cells].reshape(self.grid_target.shape)
-        near = np.zeros_like(union)
-        for grid in (self.grid_target, union):
-            near |= ndi.binary_dilation(grid, iterations=width) & ~ndi.binary_erosion(
-                grid, iterations=width)
+        if width not in self._target_bands:  # the shape's band never changes
+            self._target_bands[width] = _band(self.grid_target, width)
+        near = self._target_bands[width] | _band(union, width)
         return np.flatnonzero(near | (union != self.grid_target))
+
+
+def _band(grid: np.ndarray, width: int) -> np.ndarray:
+    """(R, R, R) bool: the cells within `width` cells of the boundary of grid (R, R, R) bool."""
+    return ndi.binary_dilation(grid, iterations=width) & ~ndi.binary_erosion(grid,
+                                                                              iterations=width)
 
 
 def _reach_matrix(surface: np.ndarray, points: np.ndarray, reach: float) -> sparse.csr_matrix:
@@ -350,6 +356,10 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
                 new = (residual_primitives(missed, 1, layout) if gain_bound > costs[victim]
                        else [])
                 trial = [p for i, p in enumerate(prims) if i != victim] + new
+            # The kept primitives' exact rows are known: only the new ones are tested.
+            kept_rows = occupancy if free > 0 else np.delete(occupancy, victim, axis=0)
+            trial_start = np.concatenate([kept_rows, points.occupancy(
+                new, settings.scoring_t_samples)]) if new else None
         if not new:
             break  # nothing missed worth a primitive: another pass would refine the same
         # All primitives move in the round: with the old ones frozen (5x cheaper) the
@@ -357,7 +367,7 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
         trial_prims, trial_occupancy = _refine_pass(
             trial, layout, points, settings, settings.residual_iterations, rng, stop, on_step,
             offset, report_every, f"residual round {k + 1} of {rounds}", timings,
-            timing_name="residual rounds")
+            timing_name="residual rounds", start_occupancy=trial_start)
         offset += settings.residual_iterations
         if points.score(trial_occupancy.any(axis=0)) <= points.score(covered):
             break  # the next round would try much the same again
@@ -369,13 +379,16 @@ def _refine_pass(prims: list[SweepPrimitive], layout: ParamLayout, points: Scori
                  settings: RefineSettings, iterations: int, rng: np.random.Generator,
                  stop: Callable[[], bool], on_step: StepCallback | None, offset: int,
                  report_every: int, stage: str, timings: StageTimings,
-                 timing_name: str = "refinement") -> tuple[list[SweepPrimitive], np.ndarray]:
+                 timing_name: str = "refinement", start_occupancy: np.ndarray | None = None,
+                 ) -> tuple[list[SweepPrimitive], np.ndarray]:
     """One pass of Adam on the primitives' parameters, then `prune`: the kept primitives
     of the best state seen and their exact occupancy (K', N) bool. Ends early when
-    `settings.patience` exact refreshes in a row do not raise the score, or on stop()."""
+    `settings.patience` exact refreshes in a row do not raise the score, or on stop().
+    start_occupancy (K, N) bool: prims' exact occupancy, when known."""
     with timings.measure(timing_name):
         best_prims, best_occupancy = _optimise(prims, layout, points, settings, iterations, rng,
-                                               stop, on_step, offset, report_every, stage)
+                                               stop, on_step, offset, report_every, stage,
+                                               start_occupancy)
     with timings.measure("pruning"):
         keep = prune(best_occupancy, points, settings.min_gain)
     return [best_prims[i] for i in keep], best_occupancy[keep]
@@ -398,10 +411,12 @@ def optimise_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayou
 def _optimise(prims: list[SweepPrimitive], layout: ParamLayout, points: ScoringPoints,
               settings: RefineSettings, iterations: int, rng: np.random.Generator,
               stop: Callable[[], bool], on_step: StepCallback | None, offset: int,
-              report_every: int, stage: str) -> tuple[list[SweepPrimitive], np.ndarray]:
+              report_every: int, stage: str, occupancy: np.ndarray | None = None,
+              ) -> tuple[list[SweepPrimitive], np.ndarray]:
     """The Adam steps of a pass: the best state by the exact score (the input's at worst)
-    and its exact occupancy (K, N) bool."""
-    occupancy = points.occupancy(prims, settings.scoring_t_samples)
+    and its exact occupancy (K, N) bool. occupancy (K, N) bool: prims' own, when known."""
+    if occupancy is None:
+        occupancy = points.occupancy(prims, settings.scoring_t_samples)
     best_score = points.score(occupancy.any(axis=0))
     best_prims: list[SweepPrimitive] = prims
     best_occupancy: np.ndarray | None = occupancy
