@@ -43,13 +43,8 @@ def _dot(xp: Any, u: Any, v: Any) -> Any:
 
 
 def _cross(xp: Any, u: Any, v: Any) -> Any:
-    if not is_numpy_namespace(xp):
-        # torch's own: one op forward and back, where the slices below cost a zero-filled
-        # gradient each (refinement step 11.7 -> see BENCHMARKS.md).
-        u, v = xp.broadcast_arrays(u, v)
-        return xp.linalg.cross(u, v, axis=-1)
     # Written out: for the small arrays of live editing this is several times faster
-    # than numpy's general cross (which moves axes around).
+    # than numpy's general cross (which moves axes around), and the same in torch.
     u0, u1, u2 = u[..., 0:1], u[..., 1:2], u[..., 2:3]
     v0, v1, v2 = v[..., 0:1], v[..., 1:2], v[..., 2:3]
     return xp.concat([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], axis=-1)
