@@ -396,7 +396,7 @@ def _cores() -> int:
 
 def _cmd_train_sweeper(args: argparse.Namespace) -> int:
     from sweepedit.fitting.sweepers import NEURAL_WEIGHTS
-    from sweepedit.fitting.train_sweeper import train_sweeper
+    from sweepedit.training.train import train_sweeper
 
     args.output = args.output or str(NEURAL_WEIGHTS)
     train_sweeper(args.output, steps=args.steps, batch_size=args.batch_size, lr=args.lr,

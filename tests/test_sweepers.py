@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 import torch
 
-from sweepedit.fitting.evaluate_sweeper import evaluation_sweeps, sweeper_accuracy
 from sweepedit.fitting.keypoints import sample_keypoints
 from sweepedit.fitting.params import DEFAULT_LAYOUT
 from sweepedit.fitting.sweepers import (
@@ -26,6 +25,7 @@ from sweepedit.fitting.sweepers import (
 )
 from sweepedit.geometry.inside import grid_points, inside_primitive
 from sweepedit.geometry.model import SweepPrimitive
+from sweepedit.training.evaluate import evaluation_sweeps, sweeper_accuracy
 
 
 def _params(cps, a, b, d, s=(0.0, 0.0), dtype=torch.float32) -> torch.Tensor:

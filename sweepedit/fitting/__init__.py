@@ -1,11 +1,10 @@
 """Differentiable fitting in torch: parameter layout, key point sampler, sweepers.
+(The neural sweeper's training is its own package, sweepedit.training.)
 
 params.py            the (B, K, P) parameter layout (P = 3n + 3 + k: control points, then
                      a, b, d, then s1..sk in ascending powers), ranges, SweepPrimitive I/O
 keypoints.py         875 key points per primitive (the neural sweeper's input)
 sweepers.py          Sweeper interface: AnalyticSweeper, NeuralSweeper, load_sweeper
-train_sweeper.py     training of the neural sweeper on random sweeps (exact labels)
-evaluate_sweeper.py  accuracy against the exact inside test, and speed
 network.py           SweepNet: voxel / point encoder, MLP, primitive and selection heads
 losses.py            reconstruction (Boltzmann union), overlap, parsimony, axis losses
 warmstart.py         primitives from the skeleton's branches

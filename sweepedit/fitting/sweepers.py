@@ -10,7 +10,7 @@ the layout of sweepedit.fitting.params (control points, a, b, d, s1..sk).
 `AnalyticSweeper` is a smooth version of the exact inside test (sweepedit.geometry.inside)
 that converges to it as its sharpness grows. `NeuralSweeper` is a compact POCO-like
 network over the primitive's 875 key points (sweepedit.fitting.keypoints), trained on
-random sweeps against the exact test (sweepedit.fitting.train_sweeper); its weights ship
+random sweeps against the exact test (sweepedit.training.train); its weights ship
 in sweepedit/resources/sweeper_neural.pt. `load_sweeper(kind)` builds the default of each kind.
 
 Both reuse the shared sweep math of sweepedit.geometry.sweep; neither has a copy of it.
@@ -533,7 +533,7 @@ def load_neural(path: str | Path = NEURAL_WEIGHTS) -> NeuralSweeper:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no neural sweeper weights at {path}; train them with "
-                                "sweepedit.fitting.train_sweeper.train_sweeper")
+                                "sweepedit.training.train.train_sweeper")
     blob = torch.load(path, map_location="cpu", weights_only=True)
     net = build_neural(blob["config"])
     net.load_state_dict({k: v.float() for k, v in blob["state_dict"].items()})

@@ -1,12 +1,12 @@
 """Benchmark of the sweepers: accuracy against the exact inside test, and speed.
 
-`sweeper_accuracy` draws fresh random sweeps (train_sweeper.random_sweeps, from seeds
+`sweeper_accuracy` draws fresh random sweeps (training.train.random_sweeps, from seeds
 that training never uses), labels the cell centres of a 64^3 grid over [-0.5, 0.5]^3 plus
 near-surface points with the exact test (sweepedit.geometry.inside), and compares the
 sweeper's occupancy hardened at 0.5. `time_forward_backward` times forward + backward
 for K primitives x Q queries.
 
-    python -m sweepedit.fitting.evaluate_sweeper [--sweeps 100] [--kinds analytic neural]
+    python -m sweepedit.training.evaluate [--sweeps 100] [--kinds analytic neural]
 
 prints both for the analytic and the neural sweeper (for BENCHMARKS.md).
 """
@@ -22,9 +22,9 @@ import numpy as np
 import torch
 
 from sweepedit.fitting.sweepers import Sweeper, load_sweeper
-from sweepedit.fitting.train_sweeper import random_sweeps, surface_points, to_primitive
 from sweepedit.geometry.inside import grid_points, inside_primitive
 from sweepedit.geometry.sweep import scaling_factor
+from sweepedit.training.train import random_sweeps, surface_points, to_primitive
 
 EVAL_SEED_TAG = 7919  # keeps evaluation sweeps apart from the training pool's seeds
 

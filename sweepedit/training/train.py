@@ -378,7 +378,7 @@ def train_sweeper(out_path: str | Path = NEURAL_WEIGHTS, steps: int = 3000,
 
 
 def main(argv: list[str] | None = None) -> None:
-    """python -m sweepedit.fitting.train_sweeper [--steps N] [--resume] ..."""
+    """python -m sweepedit.training.train [--steps N] [--resume] ..."""
     import argparse
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])

@@ -1,0 +1,48 @@
+"""The direction of dependencies of docs/architecture.md, checked on the source: each
+package imports only the packages to its left (and sweepedit.errors), and nothing but
+the command line imports the app."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "sweepedit"
+BELOW = {
+    "geometry": set(),
+    "io": {"geometry"},
+    "analysis": {"geometry", "io"},
+    "fitting": {"geometry", "io", "analysis"},
+    "batch": {"geometry", "io", "analysis", "fitting"},
+    "app": {"geometry", "io", "analysis", "fitting"},
+    "training": {"geometry", "io", "analysis", "fitting"},
+}
+
+
+def _imported_packages(path: Path) -> set[str]:
+    """The sweepedit subpackages that a module imports (top level or inside functions)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                 else [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0
+                 else [])
+        for name in names:
+            parts = name.split(".")
+            if parts[0] == "sweepedit" and len(parts) > 1:
+                found.add(parts[1])
+    return found
+
+
+@pytest.mark.parametrize("package", sorted(BELOW))
+def test_a_package_imports_only_the_packages_below_it(package: str) -> None:
+    allowed = BELOW[package] | {package, "errors"}
+    wrong = {str(path.relative_to(PACKAGE)): sorted(_imported_packages(path) - allowed)
+             for path in sorted((PACKAGE / package).rglob("*.py"))}
+    assert {k: v for k, v in wrong.items() if v} == {}
+
+
+def test_every_package_is_placed() -> None:
+    packages = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists()}
+    assert packages == set(BELOW)
