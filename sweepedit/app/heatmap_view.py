@@ -20,10 +20,11 @@ from typing import Any
 import numpy as np
 import pyvista as pv
 import vtk
-from PySide6.QtCore import QObject, QThread, QTimer, Signal, Slot
+from PySide6.QtCore import QObject, Signal
 
+from sweepedit.app.background import DebouncedJob
 from sweepedit.app.document import Document
-from sweepedit.app.scene import SweepScene, _shape_polydata
+from sweepedit.app.scene import SweepScene, shape_polydata
 from sweepedit.geometry.model import SweepPrimitive
 
 # The colour bar spans +-(this quantile of |distance|), rounded up, at least MIN_RANGE:
@@ -64,31 +65,25 @@ def color_range(distance: np.ndarray) -> float:
     return float(np.ceil(top / scale) * scale)
 
 
-class _HeatJob(QObject):
-    """Lives in the heat map's thread: one HeatMapper for the current target."""
-
-    finished = Signal(int, object, float)
-    failed = Signal(int, str)
+class _HeatMapperCache:
+    """One HeatMapper for the current target; used in the heat map's thread only."""
 
     def __init__(self) -> None:
-        super().__init__()
         self._mapper: Any = None
         self._vertices: np.ndarray | None = None
 
-    @Slot(int, object, object)
-    def compute(self, generation: int, vertices: np.ndarray,
-                primitives: list[SweepPrimitive]) -> None:
-        try:
-            from sweepedit.analysis.heatmap import HeatMapper
+    def compute(self, payload: tuple[np.ndarray, list[SweepPrimitive]]
+                ) -> tuple[np.ndarray, float]:
+        """(target vertices (V, 3), primitives) -> (signed distance (V,), seconds)."""
+        from sweepedit.analysis.heatmap import HeatMapper
 
-            started = time.perf_counter()
-            if self._vertices is not vertices:
-                self._mapper, self._vertices = None, None  # the old target's caches go
-                self._mapper, self._vertices = HeatMapper(vertices), vertices
-            heat = self._mapper.compute(primitives)
-            self.finished.emit(generation, heat.distance, time.perf_counter() - started)
-        except Exception as exc:  # a broken computation must not take the editor down
-            self.failed.emit(generation, f"{type(exc).__name__}: {exc}")
+        vertices, primitives = payload
+        started = time.perf_counter()
+        if self._vertices is not vertices:
+            self._mapper, self._vertices = None, None  # the old target's caches go
+            self._mapper, self._vertices = HeatMapper(vertices), vertices
+        heat = self._mapper.compute(primitives)
+        return heat.distance, time.perf_counter() - started
 
 
 class HeatMapView(QObject):
@@ -97,7 +92,6 @@ class HeatMapView(QObject):
 
     updated = Signal(float)
     failed = Signal(str)
-    _compute = Signal(int, object, object)
 
     def __init__(self, scene: SweepScene, document: Document,
                  parent: QObject | None = None) -> None:
@@ -111,9 +105,6 @@ class HeatMapView(QObject):
         self._poly: pv.PolyData | None = None
         self._vertices: np.ndarray | None = None
         self._actor: vtk.vtkActor | None = None
-        self._generation = 0
-        self._running = False
-        self._pending = False
         self._closed = False
 
         self.lut = diverging_lut()
@@ -134,18 +125,10 @@ class HeatMapView(QObject):
         self.scalar_bar.VisibilityOff()
         scene.plotter.renderer.AddViewProp(self.scalar_bar)
 
-        self._thread = QThread()
-        self._thread.setObjectName("sweepedit-heatmap")
-        self._job = _HeatJob()
-        self._job.moveToThread(self._thread)
-        self._compute.connect(self._job.compute)
+        self._job = DebouncedJob(_HeatMapperCache().compute, DELAY_MS, "sweepedit-heatmap",
+                                 self)
         self._job.finished.connect(self._on_finished)
-        self._job.failed.connect(self._on_failed)
-        self._thread.start()
-        self._timer = QTimer(self)
-        self._timer.setSingleShot(True)
-        self._timer.setInterval(DELAY_MS)
-        self._timer.timeout.connect(self._launch)
+        self._job.failed.connect(self.failed)
 
     # -- showing --------------------------------------------------------------------------
     def set_visible(self, visible: bool) -> bool:
@@ -180,7 +163,7 @@ class HeatMapView(QObject):
         self.doc.primitives_reset.disconnect(self._style_primitives)
 
     def _make_actor(self) -> bool:
-        poly = _shape_polydata(self.doc.shape)
+        poly = shape_polydata(self.doc.shape)
         if poly is None or not poly.n_points:
             return False
         # Wait for the first result before colouring: grey until then.
@@ -235,37 +218,19 @@ class HeatMapView(QObject):
         """Recompute once edits pause (at once with delay=False)."""
         if not self.visible or self._vertices is None:
             return
-        self._generation += 1
-        self._pending = True
-        if delay:
-            self._timer.start()
-        else:
-            self._timer.stop()
-            self._launch()
+        vertices = self._vertices
+        # The primitives are read when the computation starts: the newest edit's.
+        self._job.request(lambda: (vertices, [p.copy() for p in self.doc.primitives]),
+                          delay=delay)
 
     @property
     def running(self) -> bool:
         """Whether a result is still to come."""
-        return self._running or self._pending or self._timer.isActive()
+        return self._job.running
 
-    def _launch(self) -> None:
-        if self._running or not self._pending or self._vertices is None:
-            return
-        self._pending = False
-        self._running = True
-        prims = [p.copy() for p in self.doc.primitives]
-        self._compute.emit(self._generation, self._vertices, prims)
-
-    def _finish(self) -> bool:
-        self._running = False
-        if self._pending and not self._timer.isActive():
-            self._launch()
-        return not self._pending and not self._running
-
-    def _on_finished(self, generation: int, distance: np.ndarray, seconds: float) -> None:
-        if not self._finish() or generation != self._generation or self._poly is None:
-            return
-        if len(distance) != self._poly.n_points:
+    def _on_finished(self, result: tuple[np.ndarray, float]) -> None:
+        distance, seconds = result
+        if self._poly is None or len(distance) != self._poly.n_points:
             return  # from a target that has been replaced meanwhile
         self.last_distance = distance
         self.last_seconds = seconds
@@ -281,10 +246,6 @@ class HeatMapView(QObject):
         self.scene.request_render()
         self.updated.emit(seconds)
 
-    def _on_failed(self, generation: int, message: str) -> None:
-        if self._finish() and generation == self._generation:
-            self.failed.emit(message)
-
     # -- closing --------------------------------------------------------------------------
     def close(self, wait_ms: int = 5000) -> None:
         """Disconnect from the Document and stop the thread (when the window closes)."""
@@ -294,8 +255,4 @@ class HeatMapView(QObject):
             self.visible = False
             self._disconnect()
         self._closed = True
-        self._timer.stop()
-        self._pending = False
-        self._generation += 1
-        self._thread.quit()
-        self._thread.wait(wait_ms)
+        self._job.shutdown(wait_ms)

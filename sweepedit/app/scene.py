@@ -286,7 +286,7 @@ class SweepScene:
         if shape is None:
             self.request_render()
             return
-        poly = _shape_polydata(shape)
+        poly = shape_polydata(shape)
         if poly is None:
             return
         actor = _surface_actor(poly, SHAPE_COLOR)
@@ -874,7 +874,7 @@ class SceneMouse(QObject):
         return False
 
 
-def _shape_polydata(shape: Any) -> pv.PolyData | None:
+def shape_polydata(shape: Any) -> pv.PolyData | None:
     """A displayable PolyData of a Shape: its mesh, else its points, else its voxels."""
     mesh = getattr(shape, "mesh", None)
     if mesh is not None and len(getattr(mesh, "faces", ())):

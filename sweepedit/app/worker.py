@@ -19,8 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from PySide6.QtCore import QEventLoop, QObject, Qt, QThread, QTimer, Signal, Slot
+from PySide6.QtCore import QEventLoop, QObject, Qt, QThread, Signal
 
+from sweepedit.app.background import DebouncedJob
 from sweepedit.errors import SweepeditError
 from sweepedit.geometry.model import Abstraction, SweepPrimitive
 
@@ -374,32 +375,23 @@ class _UnavailableError(Exception):
     """The fit API could not be loaded (its message says so)."""
 
 
-class _MetricsJob(QObject):
-    """Lives in the metrics thread; computes one evaluation per request."""
-
-    finished = Signal(int, object)
-    failed = Signal(int, str)
+class _LiveMetricsCache:
+    """The current shape's LiveMetrics, which keeps each primitive's share between
+    evaluations; used in the metrics thread only."""
 
     def __init__(self, n_samples: int) -> None:
-        super().__init__()
         self.n_samples = n_samples
-        # The current shape's LiveMetrics, which keeps each primitive's share between
-        # evaluations (used in the metrics thread only).
         self._live: Any = None
 
-    @Slot(int, object, object)
-    def compute(self, generation: int, abstraction: Abstraction, shape: Any) -> None:
-        try:
-            t0 = time.perf_counter()
-            if self._live is None or self._live.shape is not shape:
-                self._live = None  # the old shape's caches go first
-                self._live = load_live_metrics()(shape, n_samples=self.n_samples, seed=0)
-            result = dict(self._live.evaluate(abstraction.primitives))
-            result["seconds"] = time.perf_counter() - t0
-        except Exception as exc:  # a broken metric must not take the editor down
-            self.failed.emit(generation, f"{type(exc).__name__}: {exc}")
-            return
-        self.finished.emit(generation, result)
+    def evaluate(self, payload: tuple[Abstraction, Any]) -> dict:
+        abstraction, shape = payload
+        t0 = time.perf_counter()
+        if self._live is None or self._live.shape is not shape:
+            self._live = None  # the old shape's caches go first
+            self._live = load_live_metrics()(shape, n_samples=self.n_samples, seed=0)
+        result = dict(self._live.evaluate(abstraction.primitives))
+        result["seconds"] = time.perf_counter() - t0
+        return result
 
 
 class MetricsRunner(QObject):
@@ -410,74 +402,34 @@ class MetricsRunner(QObject):
     updated = Signal(object)
     failed = Signal(str)
     busy = Signal(bool)
-    _compute = Signal(int, object, object)
 
     def __init__(self, parent: QObject | None = None, n_samples: int = METRICS_SAMPLES,
                  delay_ms: int = METRICS_DELAY_MS) -> None:
         super().__init__(parent)
-        self._thread = QThread()
-        self._thread.setObjectName("sweepedit-metrics")
-        self._job = _MetricsJob(n_samples)
-        self._job.moveToThread(self._thread)
-        self._compute.connect(self._job.compute)
+        self._job = DebouncedJob(_LiveMetricsCache(n_samples).evaluate, delay_ms,
+                                 "sweepedit-metrics", self)
         self._job.finished.connect(self._on_finished)
-        self._job.failed.connect(self._on_failed)
-        self._thread.start()
-        self._timer = QTimer(self)
-        self._timer.setSingleShot(True)
-        self._timer.setInterval(delay_ms)
-        self._timer.timeout.connect(self._launch)
-        self._generation = 0
-        self._running: int | None = None
-        self._pending: tuple[Abstraction, Any] | None = None
+        self._job.failed.connect(self.failed)
+        self._job.busy.connect(self.busy)
         self.last_result: dict | None = None
 
     def request(self, abstraction: Abstraction, shape: Any) -> None:
         """Evaluate a copy of `abstraction` against `shape` once edits pause."""
-        self._generation += 1
-        self._pending = (abstraction.copy(), shape)
-        self._timer.start()
+        payload = (abstraction.copy(), shape)
+        self._job.request(lambda: payload)
 
     def cancel(self) -> None:
         """Forget pending requests; a running one finishes but is not reported."""
-        self._generation += 1
-        self._pending = None
-        self._timer.stop()
+        self._job.cancel()
 
     @property
     def running(self) -> bool:
-        return self._running is not None or self._timer.isActive()
+        return self._job.running
 
-    def _launch(self) -> None:
-        if self._running is not None or self._pending is None:
-            return  # launched again when the running one finishes
-        abstraction, shape = self._pending
-        self._pending = None
-        self._running = self._generation
-        self.busy.emit(True)
-        self._compute.emit(self._generation, abstraction, shape)
-
-    def _done(self) -> bool:
-        """Bookkeeping after a job; True when the finished job is the newest request."""
-        current = self._running == self._generation
-        self._running = None
-        if self._pending is not None and not self._timer.isActive():
-            self._launch()
-        if self._running is None:
-            self.busy.emit(False)
-        return current
-
-    def _on_finished(self, generation: int, result: dict) -> None:
-        if self._done() and generation == self._generation:
-            self.last_result = result
-            self.updated.emit(result)
-
-    def _on_failed(self, generation: int, message: str) -> None:
-        if self._done() and generation == self._generation:
-            self.failed.emit(message)
+    def _on_finished(self, result: dict) -> None:
+        self.last_result = result
+        self.updated.emit(result)
 
     def shutdown(self, wait_ms: int = 5000) -> None:
         """Stop the thread (at exit); waits for a running evaluation."""
-        self.cancel()
-        self._thread.quit()
-        self._thread.wait(wait_ms)
+        self._job.shutdown(wait_ms)

@@ -122,9 +122,11 @@ def run_job(path: str | Path, name: str, spec: JobSpec) -> JobOutcome:
 def _fit_one(path: Path, name: str, spec: JobSpec, node: str) -> JobOutcome:
     import torch
 
-    # torch.optim's first optimizer imports torch._dynamo (~4 s, once per process): a
-    # worker's warm-up, kept off the first shape's seconds.
-    import torch._dynamo
+    if spec.settings.method == "network":
+        # The network stage's torch.optim imports torch._dynamo with its first optimizer
+        # (1.5-4 s, once per process): a worker's warm-up, kept off the first shape's
+        # seconds. The direct method's refinement has its own Adam and never needs it.
+        import torch._dynamo
 
     from sweepedit.analysis.metrics import evaluate
     from sweepedit.fitting.fit import fit_abstraction
