@@ -447,7 +447,8 @@ def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
     p.add_argument("--residual-rounds", type=int, default=2,
                    help="refinement rounds that add primitives where the shape is missed (2)")
     p.add_argument("--min-gain", type=float, default=0.001,
-                   help="score a primitive must add to be kept; higher keeps fewer (0.001)")
+                   help="score a primitive must add to be kept, up to 8 primitives (beyond, "
+                        "it shrinks as 8/K); higher keeps fewer (0.001)")
     p.add_argument("--surface-weight", type=float, default=1.0,
                    help="weight of surface coverage against IoU when refining; higher "
                         "spends primitives on thin parts (1.0)")

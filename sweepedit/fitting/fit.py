@@ -107,7 +107,7 @@ class FitSettings:
     # long as the first pass), while fewer than `primitives` are kept.
     residual_rounds: int = 2
     # What a primitive must add to the refinement score (IoU plus weighted surface
-    # coverage) to be kept: higher keeps fewer primitives.
+    # coverage) to be kept, up to 8 primitives (beyond, `keep_gain`): higher keeps fewer.
     min_gain: float = 0.001
     # Weight of surface coverage against IoU in the refinement score
     # (sweepedit.fitting.refine): higher spends primitives on thin parts that IoU
@@ -118,6 +118,12 @@ class FitSettings:
     time_limit: float | None = None
     # "auto" (CUDA when present, else the CPU), "cpu" or "cuda".
     device: str = "auto"
+
+    @property
+    def keep_gain(self) -> float:
+        """What a primitive must add to be kept: min_gain up to 8 primitives, then shrinking
+        as 8 / K, since each of K primitives' natural share of the shape does."""
+        return self.min_gain * min(1.0, 8.0 / max(self.primitives, 1))
 
     @property
     def refine_steps(self) -> int:
@@ -453,7 +459,7 @@ def _fit_abstraction(shape: Shape, settings: FitSettings | None, *,
 
     steps = settings.refine_steps
     refine = RefineSettings(iterations=steps, start_sharpness=settings.sharpness,
-                            min_gain=settings.min_gain,
+                            min_gain=settings.keep_gain,
                             residual_rounds=settings.residual_rounds if steps else 0,
                             residual_iterations=steps // 2, device=device)
     network_steps = settings.iterations if settings.method == "network" else 0

@@ -86,7 +86,7 @@ def refit_selection(shape: Shape, primitives: Sequence[SweepPrimitive],
     steps = (settings.refine_iterations if settings.refine_iterations is not None
              else FitSettings(primitives=len(chosen)).refine_steps)
     refine = RefineSettings(iterations=steps, start_sharpness=settings.sharpness,
-                            min_gain=settings.min_gain, residual_rounds=0, device=device)
+                            min_gain=settings.keep_gain, residual_rounds=0, device=device)
     total = max(steps * len(groups), 1)
     timed_out = False
 
