@@ -31,7 +31,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
-from threadpoolctl import threadpool_limits
 
 from sweepedit.errors import SweepeditError, primitive_label
 from sweepedit.fitting.losses import (
@@ -433,18 +432,6 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     Locked primitives are kept unchanged and come first in the result. With a time limit,
     the best abstraction found within it is returned (the warm start at worst).
     """
-    # numpy's BLAS on one thread: the fit's matmuls (the exact test's plane offsets) are
-    # small, and a second OpenBLAS thread fought torch's OpenMP threads for the 2 cores
-    # (glyph_8: whole fit 15.6 -> 14.2 s, the same result).
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _fit_abstraction(shape, settings, locked=locked, callback=callback,
-                                cancel=cancel)
-
-
-def _fit_abstraction(shape: Shape, settings: FitSettings | None, *,
-                     locked: Sequence[SweepPrimitive],
-                     callback: Callable[[FitProgress], None] | None,
-                     cancel: threading.Event | None) -> FitResult:
     from sweepedit.analysis.skeleton import compute_skeleton
     from sweepedit.io.shapes import check_fittable
 

@@ -129,15 +129,14 @@ def _pieces(branches: Sequence, k: int,
                                               strict=True)]
         else:
             pieces.append((pts, rad))
-    # Keep the pieces that carry the most volume (length x squared radius); radii below
-    # a voxel are floored so that thin limbs still count for their length.
-    pieces.sort(key=lambda pr: -_volume(pr))
-    pieces = pieces[:k]
+    pieces = sorted(pieces, key=_volume, reverse=True)[:k]
+    if not pieces:
+        return pieces
     for _ in range(4 * k):  # each round splits a piece; the cap only guards the loop
         excess = [axis_fit_error(p, n_control_points) - _split_tolerance(r)
                   if len(p) >= 2 * MIN_PIECE_POINTS else -np.inf for p, r in pieces]
-        worst = int(np.argmax(excess)) if pieces else 0
-        if not pieces or excess[worst] <= 0.0:
+        worst = int(np.argmax(excess))
+        if excess[worst] <= 0.0:
             break
         if len(pieces) >= k:
             # At k pieces, a small piece gives its primitive to the worst-followed one
