@@ -116,12 +116,78 @@ def test_cylinder_and_box_in_closed_form(kind):
 # -- gradients ---------------------------------------------------------------------------
 
 
-def test_analytic_gradcheck_float64():
-    sweeper = AnalyticSweeper(sharpness=30.0, stations=16)
-    p = _params([[-0.3, 0.1, 0.0], [0.0, 0.3, 0.2], [0.3, -0.1, 0.1]], 0.15, 0.1, 2.6,
+@pytest.mark.parametrize("fused", [True, False])
+@pytest.mark.parametrize("d", [0.6, 2.6])
+def test_analytic_gradcheck_float64(fused, d):
+    """Finite differences against both paths' gradients: the fused loops' hand-written
+    backward and autograd's, to the parameters and to the queries."""
+    sweeper = AnalyticSweeper(sharpness=30.0, stations=16, fused=fused)
+    p = _params([[-0.3, 0.1, 0.0], [0.0, 0.3, 0.2], [0.3, -0.1, 0.1]], 0.15, 0.1, d,
                 (0.2, -0.3), dtype=torch.float64)[None, None].requires_grad_(True)
     q = _near_queries(p[0].detach(), 8, seed=1).double()[None].requires_grad_(True)
     assert torch.autograd.gradcheck(sweeper, (p, q), eps=1e-6, atol=1e-5)
+
+
+def test_fused_kernels_match_torch_ops():
+    """The fused CPU loops (bracket search, occupancy, backward) against the torch ops
+    that run on other devices: the same brackets, occupancy and gradients, over the
+    edge cases (thin, boxy, folded, degenerate axes) and random curved primitives at a
+    fitting sharpness, where some brackets saturate (the loops' shortcut)."""
+    gen = torch.Generator().manual_seed(3)
+    rand = torch.rand(6, DEFAULT_LAYOUT.size, generator=gen)
+    rand[:, :9] = rand[:, :9] * 0.8 - 0.4
+    rand[:, 9:11] = 0.03 + 0.2 * rand[:, 9:11]
+    rand[:, 11] = 0.4 + 4.0 * rand[:, 11]
+    rand[:, 12:] = rand[:, 12:] - 0.5
+    params = torch.cat([_edge_cases(), rand])[None]
+    queries = torch.cat([_near_queries(params[0], 3000, seed=4),
+                         torch.rand(1000, 3, generator=gen) - 0.5])[None]
+    results = []
+    for fused in (True, False):
+        sweeper = AnalyticSweeper(sharpness=400.0, fused=fused)
+        st = sweeper._stations(params)
+        q = queries.expand(params.shape[1], -1, -1).contiguous()
+        brackets = sweeper._brackets(q, st)
+        p = params.clone().requires_grad_(True)
+        qs = queries.clone().requires_grad_(True)
+        occ = sweeper(p, qs)
+        weights = torch.rand(occ.shape, generator=torch.Generator().manual_seed(5))
+        (occ * weights).sum().backward()
+        results.append((brackets, occ.detach(), p.grad, qs.grad))
+    (b_fused, o_fused, gp_fused, gq_fused), (b_ops, o_ops, gp_ops, gq_ops) = results
+
+    def as_set(brackets):
+        rows, pairs, bracket = brackets
+        return set(zip(pairs.tolist(), bracket.tolist(), strict=True))
+
+    # float32 h at a station can round to either side of 0 in the two paths.
+    assert len(as_set(b_fused) ^ as_set(b_ops)) <= 2
+    assert len(b_fused[0]) > 2000
+    assert float((o_fused - o_ops).abs().max()) < 1e-4
+    assert 0.05 < float((o_fused > 0.5).float().mean()) < 0.6
+    torch.testing.assert_close(gp_fused, gp_ops, rtol=2e-3, atol=2e-3 * float(gp_ops.abs().max()))
+    torch.testing.assert_close(gq_fused, gq_ops, rtol=2e-3, atol=2e-3 * float(gq_ops.abs().max()))
+
+
+def test_fused_bracket_search_reports_overflow():
+    """With too little room the bracket search writes what fits and says how many there
+    are, so that the caller asks again (every bracket found, the first ones the same)."""
+    from sweepedit.fitting import bracket_kernels
+
+    sweeper = AnalyticSweeper(stations=16)
+    params = _edge_cases()[None, :2]
+    q = _near_queries(params[0], 500, seed=6)[None].expand(2, -1, -1).contiguous()
+    st = sweeper._stations(params)
+    arrays = [st[k].detach().contiguous().numpy() for k in
+              ("points", "tangents", "box_lo", "box_hi", "coarse", "reach")]
+    room = [np.empty(4000, dtype=np.int64) for _ in range(3)]
+    total = bracket_kernels.find_brackets(q.numpy(), *arrays, *room)
+    small = [np.full(10, -1, dtype=np.int64) for _ in range(3)]
+    assert bracket_kernels.find_brackets(q.numpy(), *arrays, *small) == total > 10
+    for full, part in zip(room, small, strict=True):
+        np.testing.assert_array_equal(part, full[:10])
+    rows, _, _ = sweeper._brackets(q, st)
+    assert len(rows) == total
 
 
 def test_neural_gradcheck_float64(neural):
