@@ -255,7 +255,9 @@ def test_worker_killed_mid_shape_is_retried(tmp_path: Path, local_ray) -> None:
 
 def test_time_limit_hard_kill_is_a_failed_row(tmp_path: Path, local_ray) -> None:
     shape = _good_shapes(tmp_path / "in")[1]
-    options = BatchOptions(tmp_path / "out", SPEC, engine="ray", kill_after=0.5,
+    # The default fit (seconds; the test's fast one can finish inside the 0.5 s).
+    spec = JobSpec(FitSettings(), samples=2000)
+    options = BatchOptions(tmp_path / "out", spec, engine="ray", kill_after=0.5,
                            progress=False)
     report = run_batch(expand_inputs([shape]), options)
     (outcome,) = report.outcomes

@@ -157,7 +157,7 @@ def test_fused_kernels_match_torch_ops():
     (b_fused, o_fused, gp_fused, gq_fused), (b_ops, o_ops, gp_ops, gq_ops) = results
 
     def as_set(brackets):
-        rows, pairs, bracket = brackets
+        _, pairs, bracket = brackets
         return set(zip(pairs.tolist(), bracket.tolist(), strict=True))
 
     # float32 h at a station can round to either side of 0 in the two paths.
@@ -265,3 +265,20 @@ def test_shipped_neural_weights_are_accurate(neural):
     torch.manual_seed(0)
     untrained = sweeper_accuracy(build_neural(neural.config), n_sweeps=4, **kwargs)
     assert untrained["iou_mean"] < 0.5, untrained
+
+
+def test_fused_kernels_do_not_raise_on_degenerate_rows():
+    """A zero table row (a = b = 0: divisions by zero) gives non-finite values, as numpy
+    and torch would, for the step's finiteness check to skip; not a ZeroDivisionError
+    mid-fit (numba's default error model raises one)."""
+    from sweepedit.fitting import bracket_kernels
+
+    occupancy = np.zeros(1, dtype=np.float32)
+    saved = np.zeros((1, bracket_kernels.N_SAVED), dtype=np.float32)
+    index = np.zeros(1, dtype=np.int64)
+    table, queries = np.zeros((1, 32), dtype=np.float32), np.full((1, 3), 0.1, dtype=np.float32)
+    bracket_kernels.occupancy_forward(table, queries, index, index, 100.0, occupancy, saved)
+    grads = np.zeros_like(table), np.zeros_like(queries)
+    bracket_kernels.occupancy_backward(table, queries, index, index, 100.0, occupancy, saved,
+                                       np.ones(1, dtype=np.float32), *grads, True)
+    assert not np.isfinite(occupancy).all()

@@ -28,13 +28,13 @@ N_SAVED = 6
 SATURATED = 40.0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _local(table: np.ndarray, m: int, qx: float, qy: float, qz: float, j: int) -> float:
     """Column j of [q, 1] @ A for table row m."""
     return qx * table[m, j] + qy * table[m, 6 + j] + qz * table[m, 12 + j] + table[m, 18 + j]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _interpolated(table: np.ndarray, queries: np.ndarray, m: int, p: int
                   ) -> tuple[float, float, float, bool, float, float, float, float, float,
                              float, float, float, float, float]:
@@ -62,7 +62,7 @@ def _interpolated(table: np.ndarray, queries: np.ndarray, m: int, p: int
             max(f_raw, 1e-4), f_raw, df, table[m, 26] + lam * de, de)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def occupancy_forward(table: np.ndarray, queries: np.ndarray, flat: np.ndarray,
                       pair: np.ndarray, sharpness: float, occupancy: np.ndarray,
                       saved: np.ndarray) -> None:
@@ -96,7 +96,7 @@ def occupancy_forward(table: np.ndarray, queries: np.ndarray, flat: np.ndarray,
         saved[i, 3], saved[i, 4], saved[i, 5] = log_u, log_v, log_level
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def occupancy_backward(table: np.ndarray, queries: np.ndarray, flat: np.ndarray,
                        pair: np.ndarray, sharpness: float, occupancy: np.ndarray,
                        saved: np.ndarray, grad: np.ndarray, grad_table: np.ndarray,
@@ -176,7 +176,7 @@ def occupancy_backward(table: np.ndarray, queries: np.ndarray, flat: np.ndarray,
                 grad_queries[p, c] += total_c
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def find_brackets(queries: np.ndarray, points: np.ndarray, tangents: np.ndarray,
                   box_lo: np.ndarray, box_hi: np.ndarray, coarse: np.ndarray,
                   reach: np.ndarray, rows: np.ndarray, pairs: np.ndarray,
