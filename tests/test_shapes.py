@@ -109,6 +109,26 @@ def test_inside_out_mesh_is_turned_outward(tmp_path):
     assert shape.occupancy.sum() * H**3 == pytest.approx(np.pi / 6, rel=0.03)
 
 
+def test_mixed_face_orientations_are_made_consistent(tmp_path):
+    """A torus with the faces of one side flipped (as scans and exports can come): the
+    winding number of the mixed faces cancels inside, so the faces are turned to agree
+    first; the occupancy is then the consistent torus's, whose volume is 2 pi^2 R r^2."""
+    torus = trimesh.creation.torus(major_radius=0.3, minor_radius=0.1, major_sections=48,
+                                   minor_sections=24)
+    faces = torus.faces.copy()
+    side = torus.triangles_center[:, 0] > 0.0
+    faces[side] = faces[side][:, ::-1]
+    mixed = trimesh.Trimesh(torus.vertices, faces, process=False)
+    assert not mixed.is_winding_consistent
+    mixed.export(tmp_path / "mixed.ply")
+    torus.export(tmp_path / "torus.ply")
+    shape, reference = _load(tmp_path / "mixed.ply"), _load(tmp_path / "torus.ply")
+    assert shape.surface.is_winding_consistent
+    np.testing.assert_array_equal(shape.winding_occupancy, reference.winding_occupancy)
+    volume = shape.winding_occupancy.sum() * (shape.normalization.scale / 64) ** 3
+    assert volume == pytest.approx(2 * np.pi**2 * 0.3 * 0.1**2, rel=0.05)
+
+
 def test_surface_samples_are_area_uniform_and_seeded(tmp_path):
     box = trimesh.creation.box(extents=(1.0, 1.0, 0.1))
     path = tmp_path / "plate.off"
