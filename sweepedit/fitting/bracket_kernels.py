@@ -1,9 +1,11 @@
-"""The analytic sweeper's per-bracket soft occupancy and its gradient as fused CPU loops.
+"""The analytic sweeper's bracket search, and its per-bracket soft occupancy with the
+gradient, as fused CPU loops.
 
 As torch ops, a bracket's occupancy is about forty operations over all the brackets, and
 its backward twice as many; on the CPU each costs ~10 µs of dispatch and allocation for
-the ~14k brackets of a refinement step, several times the arithmetic. These loops do
-the same arithmetic once per bracket (numba; compiled on first use and cached on disk).
+the ~14k brackets of a refinement step, several times the arithmetic, and the search
+built a primitives x queries x stations table. These loops do the same arithmetic once
+per bracket and per query (numba; compiled on first use and cached on disk).
 The formula is AnalyticSweeper's (sweepers.py), which keeps the torch version for other
 devices; tests/test_sweepers.py holds the two to each other and to finite differences.
 
