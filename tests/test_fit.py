@@ -214,3 +214,24 @@ def test_the_keep_threshold_shrinks_with_the_budget_beyond_eight() -> None:
     assert FitSettings(primitives=8).keep_gain == FitSettings().min_gain
     assert FitSettings(primitives=16).keep_gain == pytest.approx(FitSettings().min_gain / 2)
     assert FitSettings(primitives=32, min_gain=0.004).keep_gain == pytest.approx(0.001)
+
+
+def test_time_left_follows_the_pace_after_the_first_step(monkeypatch) -> None:
+    """A slow first step (code loading) or a slow preparation does not inflate the
+    estimate: it comes from the pace between reports after the first one."""
+    import threading
+
+    from sweepedit.fitting import fit as fit_module
+
+    now = [0.0]
+    monkeypatch.setattr(fit_module.time, "perf_counter", lambda: now[0])
+    clock = fit_module._Clock(None, threading.Event(), total_steps=100)
+    now[0] = 5.0  # preparation and a first step that compiled code
+    assert clock.seconds_left(1) is None
+    now[0] = 6.0  # then 0.1 s a step
+    assert clock.seconds_left(11) == pytest.approx(89 * 0.1)
+    now[0] = 7.0
+    assert clock.seconds_left(21) == pytest.approx(79 * 0.1)
+    limited = fit_module._Clock(8.0, threading.Event(), total_steps=100)
+    now[0] = 11.0  # 4 s after its start: at most the 4 s left of the limit
+    assert limited.seconds_left(1) == pytest.approx(4.0)

@@ -224,7 +224,9 @@ def configure_threads() -> None:
 
 class _Clock:
     """The fit's time: elapsed seconds, the time limit, cancel, and a time-left estimate
-    from the steps done so far."""
+    from the pace of the steps since the first report of a step (the time before it --
+    preparing the shape, a first step that loads or compiles code -- says nothing of
+    the pace: a fresh install's first step once read "~1620 s left" for a 9 s fit)."""
 
     def __init__(self, limit: float | None, cancel: threading.Event, total_steps: int) -> None:
         self.start = time.perf_counter()
@@ -232,6 +234,7 @@ class _Clock:
         self.cancel = cancel
         self.total_steps = max(total_steps, 1)
         self.timed_out = False
+        self._since: tuple[float, int] | None = None  # (time, steps) of the first report
 
     def elapsed(self) -> float:
         return time.perf_counter() - self.start
@@ -246,10 +249,14 @@ class _Clock:
         return False
 
     def seconds_left(self, steps_done: int) -> float | None:
+        """Seconds left at steps_done steps; None while the pace is not known."""
         elapsed = self.elapsed()
         estimate = None
-        if steps_done > 0:
-            estimate = elapsed / steps_done * max(self.total_steps - steps_done, 0)
+        if steps_done > 0 and self._since is None:
+            self._since = (elapsed, steps_done)
+        elif self._since is not None and steps_done > self._since[1]:
+            pace = (elapsed - self._since[0]) / (steps_done - self._since[1])
+            estimate = pace * max(self.total_steps - steps_done, 0)
         if self.limit is not None:
             remaining = max(self.limit - elapsed, 0.0)
             estimate = remaining if estimate is None else min(estimate, remaining)
