@@ -236,7 +236,6 @@ class AnalyticSweeper(Sweeper):
         return rows.index_select(0, hit), pairs.index_select(0, hit), bracket
 
 
-
 def _find_brackets_fused(q: torch.Tensor, st: dict[str, torch.Tensor]
                          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """AnalyticSweeper._brackets through bracket_kernels.find_brackets (CPU tensors)."""
@@ -255,7 +254,7 @@ def _find_brackets_fused(q: torch.Tensor, st: dict[str, torch.Tensor]
 
 
 def _bracket_occupancy(table: torch.Tensor, queries: torch.Tensor, flat: torch.Tensor,
-                      pair: torch.Tensor, sharpness: float, fused: bool) -> torch.Tensor:
+                       pair: torch.Tensor, sharpness: float, fused: bool) -> torch.Tensor:
     """The soft occupancy of each bracket (AnalyticSweeper's formula): table (M, 32) of
     AnalyticSweeper._stations, flattened over (primitive, bracket); queries (NQ, 3);
     flat, pair (V,): each bracket's table row and query -> occupancy (V,).
