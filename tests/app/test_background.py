@@ -34,7 +34,7 @@ class _Recorder:
         return ("result", payload)
 
 
-def _job(qtbot, compute, delay_ms: int = 50) -> tuple[DebouncedJob, list, list, list]:
+def _job(compute, delay_ms: int = 50) -> tuple[DebouncedJob, list, list, list]:
     job = DebouncedJob(compute, delay_ms, "test-job")
     finished, failed, busy = [], [], []
     job.finished.connect(finished.append)
@@ -45,7 +45,7 @@ def _job(qtbot, compute, delay_ms: int = 50) -> tuple[DebouncedJob, list, list, 
 
 def test_a_burst_of_edits_is_one_computation_of_the_newest_state(qtbot) -> None:
     compute = _Recorder()
-    job, finished, failed, busy = _job(qtbot, compute)
+    job, finished, failed, busy = _job(compute)
     try:
         for i in range(10):
             job.request(lambda i=i: i)
@@ -61,7 +61,7 @@ def test_a_burst_of_edits_is_one_computation_of_the_newest_state(qtbot) -> None:
 
 def test_a_result_overtaken_by_an_edit_is_not_shown(qtbot) -> None:
     compute = _Recorder()
-    job, finished, failed, _ = _job(qtbot, compute, delay_ms=10)
+    job, finished, failed, _ = _job(compute, delay_ms=10)
     try:
         compute.gate.clear()
         job.request(lambda: "old", delay=False)
@@ -79,7 +79,7 @@ def test_a_result_overtaken_by_an_edit_is_not_shown(qtbot) -> None:
 
 def test_a_failure_is_one_message_and_the_job_goes_on(qtbot) -> None:
     compute = _Recorder()
-    job, finished, failed, _ = _job(qtbot, compute)
+    job, finished, failed, _ = _job(compute)
     try:
         job.request(lambda: "broken", delay=False)
         qtbot.waitUntil(lambda: not job.running, timeout=5000)
@@ -93,7 +93,7 @@ def test_a_failure_is_one_message_and_the_job_goes_on(qtbot) -> None:
 
 def test_cancel_and_shutdown_drop_pending_work(qtbot) -> None:
     compute = _Recorder()
-    job, finished, _, _ = _job(qtbot, compute, delay_ms=100)
+    job, finished, _, _ = _job(compute, delay_ms=100)
     job.request(lambda: "dropped")
     job.cancel()
     assert not job.running
