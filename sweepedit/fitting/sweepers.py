@@ -306,15 +306,19 @@ class _FusedBracketOccupancy(torch.autograd.Function):
         saved = np.empty((len(flat_np), kernels.N_SAVED), dtype=table_np.dtype)
         kernels.occupancy_forward(table_np, queries_np, flat_np, pair_np, float(sharpness),
                                   occupancy, saved)
-        ctx.arrays = (table_np, queries_np, flat_np, pair_np, occupancy, saved)
+        ctx.arrays = (table_np, queries_np, flat_np, pair_np, saved)
         ctx.sharpness = float(sharpness)
-        return torch.from_numpy(occupancy)
+        result = torch.from_numpy(occupancy)
+        # Saved as a tensor, so that autograd refuses a backward after an in-place change.
+        ctx.save_for_backward(result)
+        return result
 
     @staticmethod
     def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
         from sweepedit.fitting import bracket_kernels as kernels
 
-        table_np, queries_np, flat_np, pair_np, occupancy, saved = ctx.arrays
+        table_np, queries_np, flat_np, pair_np, saved = ctx.arrays
+        occupancy = ctx.saved_tensors[0].numpy()
         want_queries = bool(ctx.needs_input_grad[1])
         grad_table = np.zeros_like(table_np)
         grad_queries = np.zeros_like(queries_np) if want_queries else queries_np[:0]
