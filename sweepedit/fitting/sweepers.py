@@ -268,7 +268,7 @@ def _bracket_occupancy(table: torch.Tensor, queries: torch.Tensor, flat: torch.T
 
 def _bracket_occupancy_ops(table: torch.Tensor, queries: torch.Tensor, flat: torch.Tensor,
                            pair: torch.Tensor, sharpness: float) -> torch.Tensor:
-    """bracket_occupancy as torch ops (autograd's gradient)."""
+    """_bracket_occupancy as torch ops (autograd's gradient)."""
     rows = table.index_select(0, flat)  # (V, 32)
     aff = rows[:, :24].reshape(-1, 4, 6)
     qr = queries.index_select(0, pair)  # (V, 3)
@@ -292,7 +292,7 @@ def _bracket_occupancy_ops(table: torch.Tensor, queries: torch.Tensor, flat: tor
 
 
 class _FusedBracketOccupancy(torch.autograd.Function):
-    """bracket_occupancy through bracket_kernels' loops (CPU tensors)."""
+    """_bracket_occupancy through bracket_kernels' loops (CPU tensors)."""
 
     @staticmethod
     def forward(ctx: Any, table: torch.Tensor, queries: torch.Tensor, flat: torch.Tensor,
@@ -329,6 +329,7 @@ class _FusedBracketOccupancy(torch.autograd.Function):
                                    grad_table, grad_queries, want_queries)
         return (torch.from_numpy(grad_table) if ctx.needs_input_grad[0] else None,
                 torch.from_numpy(grad_queries) if want_queries else None, None, None, None)
+
 
 # ----------------------------------------------------------------------------------------
 # Neural sweeper

@@ -490,15 +490,15 @@ def _shape_from_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, resolu
     mesh = trimesh.Trimesh(vertices, faces, process=True, validate=False)
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.remove_unreferenced_vertices()
+    if len(mesh.faces) == 0 or mesh.area <= 0:
+        raise DegenerateShapeError(path, "degenerate shape: the mesh has no faces of "
+                                         "non-zero area")
     # Scans and exports often mix face orientations, and the winding number then cancels
     # inside (spot with half its faces flipped kept 40 % of its volume): the faces are
     # turned to agree across each connected surface first, when they do not (~0.7 s for
     # 23k faces; the check alone is a few ms).
     if not mesh.is_winding_consistent:
         trimesh.repair.fix_winding(mesh)
-    if len(mesh.faces) == 0 or mesh.area <= 0:
-        raise DegenerateShapeError(path, "degenerate shape: the mesh has no faces of "
-                                         "non-zero area")
     _check_not_flat(path, mesh.vertices, "its vertices")
     conditioned = _normalization(path, mesh.vertices)
     mesh.vertices = conditioned.to_normalized(mesh.vertices)
