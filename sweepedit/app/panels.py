@@ -7,6 +7,7 @@ their own widgets' signals while they do so that a refresh never becomes an edit
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -91,6 +92,7 @@ def progress_text(update: FitUpdate) -> str:
     return text
 
 
+@functools.lru_cache(maxsize=256)  # the panels ask again on every edit of a primitive
 def color_icon(color: str, size: int = 14) -> QIcon:
     """A square swatch of `color` with a thin dark border."""
     pix = QPixmap(size, size)

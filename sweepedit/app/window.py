@@ -17,7 +17,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import pyvista as pv
-from PySide6.QtCore import QBuffer, QByteArray, QIODevice, QSettings, Qt, QTimer
+from PySide6.QtCore import QBuffer, QByteArray, QIODevice, QPoint, QRect, QSettings, Qt, QTimer
 from PySide6.QtGui import (
     QAction,
     QCloseEvent,
@@ -25,6 +25,7 @@ from PySide6.QtGui import (
     QDropEvent,
     QImage,
     QKeySequence,
+    QPainter,
 )
 from PySide6.QtWidgets import (
     QApplication,
@@ -154,7 +155,7 @@ class MainWindow(QMainWindow):
                  preload_fit: bool = True, recovery_dir: Path | None = None) -> None:
         super().__init__(parent)
         self.preload_fit = preload_fit
-        from pyvistaqt import QtInteractor  # heavy import, only when a window is made
+        from sweepedit.app.view3d import make_view  # heavy import, only when a window is made
 
         self.settings = settings if settings is not None else QSettings("sweepedit", "sweepedit")
         self.doc = Document()
@@ -163,8 +164,7 @@ class MainWindow(QMainWindow):
                                   report=lambda message: self.show_status(message, 15000))
         # One headlight instead of pyvista's five-light kit: lighting is per fragment and
         # software GL (no GPU) pays for every light on every pixel.
-        self.plotter = QtInteractor(self, auto_update=False, multi_samples=MULTI_SAMPLES,
-                                    lighting="none")
+        self.plotter = make_view(self, multi_samples=MULTI_SAMPLES, lighting="none")
         self.plotter.add_light(pv.Light(light_type="headlight", intensity=1.0))
         self._antialiasing_checked = False
         self.plotter.setAcceptDrops(False)  # drops go to the window (pyvistaqt would add meshes)
@@ -748,12 +748,22 @@ class MainWindow(QMainWindow):
         self.scene.render_now()
         return self.plotter.grabFramebuffer()
 
+    def window_image(self) -> QImage:
+        """The whole window as shown. Qt's grab leaves a native 3D view out (VTK draws
+        that window itself), so the view's frame is painted into its place."""
+        image = self.grab().toImage()
+        painter = QPainter(image)
+        painter.drawImage(QRect(self.plotter.mapTo(self, QPoint(0, 0)), self.plotter.size()),
+                          self.view_image())
+        painter.end()
+        return image
+
     def save_screenshot(self, path: str | Path, full_window: bool = False) -> bool:
         """Write the 3D view (or the whole window) as a PNG, atomically."""
         path = Path(path)
         try:
             self.scene.render_now()
-            image = self.grab().toImage() if full_window else self.view_image()
+            image = self.window_image() if full_window else self.view_image()
             from sweepedit.io.params import atomic_write_bytes
 
             atomic_write_bytes(path, _png_bytes(image))
@@ -1004,7 +1014,7 @@ class MainWindow(QMainWindow):
             self.metrics.cancel()
             self.metrics_label.setText("No primitives")
             return
-        self.metrics.request(self.doc.abstraction, self.doc.shape)
+        self.metrics.request(lambda: (self.doc.abstraction, self.doc.shape))
         self._on_metrics_busy(True)
 
     def _on_metrics(self, result: dict) -> None:

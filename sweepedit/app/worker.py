@@ -413,10 +413,16 @@ class MetricsRunner(QObject):
         self._job.busy.connect(self.busy)
         self.last_result: dict | None = None
 
-    def request(self, abstraction: Abstraction, shape: Any) -> None:
-        """Evaluate a copy of `abstraction` against `shape` once edits pause."""
-        payload = (abstraction.copy(), shape)
-        self._job.request(lambda: payload)
+    def request(self, current: Callable[[], tuple[Abstraction, Any]]) -> None:
+        """Evaluate the abstraction against the shape that `current()` returns once edits
+        pause. It is called then, and the abstraction copied then: a drag's moves copy
+        nothing."""
+
+        def payload() -> tuple[Abstraction, Any]:
+            abstraction, shape = current()
+            return abstraction.copy(), shape
+
+        self._job.request(payload)
 
     def cancel(self) -> None:
         """Forget pending requests; a running one finishes but is not reported."""
