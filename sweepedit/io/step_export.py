@@ -16,13 +16,14 @@ control curves are within a tolerance of the exact ones at every midpoint.
 Every solid is checked with OpenCascade's analyser and against its volume in closed form
 (the profile's area times the integral of f(t)^2 |s'(t)|, exact when nothing folds)
 before anything is written; a union is checked against a Monte Carlo estimate from the
-exact inside test. A sweep that folds onto itself (its profile reaches past the axis'
-centre of curvature) would loft into a self-intersecting solid that OpenCascade's
-checker passes; it is lofted through forward sections instead (the profile clamped
-short of the fold, as the solid mesher's forward tubes) where those never meet and the
-result is within 1% of a Monte Carlo estimate of the true volume, and refused with an
-error naming it otherwise (26 of the 50 folding primitives of the official SweepNet
-fits). So is any sweep whose axis comes back close enough for it to overlap itself.
+exact inside test. A sweep whose sections cross (it folds onto itself: its profile
+reaches past the axis' centre of curvature; or its axis comes back onto itself) would
+loft into a self-intersecting solid that OpenCascade's checker passes. It is built as a
+loft through forward sections (the profile clamped short of the fold, as the solid
+mesher's forward tubes), else as a loft through parallel slices of the true solid
+(geometry/slices.py), and written only when that is within 1% of a quasi-Monte Carlo
+estimate of its true volume; otherwise it is refused with an error naming it (3 of
+the 122 folding primitives of the official files and the K = 8 fits of the 30 shapes).
 
 OpenCascade (the `cad` extra, package cadquery-ocp-novtk) is imported only when a STEP
 file is made, so the rest of sweepedit works without it.
@@ -50,6 +51,7 @@ from sweepedit.geometry.model import (
     SweepPrimitive,
     folds_onto_itself,
 )
+from sweepedit.geometry.slices import slice_rings, slicing_directions, surface_samples
 
 # The solid mesher's rules for where a sweep's sections cross or meet (private there, but
 # the same rule must cut the B-rep runs as cuts its mesh pieces).
@@ -415,14 +417,11 @@ def primitive_solid(primitive: SweepPrimitive, index: int = 0,
     what = _describe(index, primitive)
     primitive.validate(index)
     scale = 1.0 if normalization is None else normalization.scale
-    if _sections_meet(primitive):
-        # The sweep overlaps itself where its axis comes back: the closed form counts
-        # that twice and a loft would intersect itself.
-        raise StepExportError(f"{what}: its axis comes back so close that the sweep "
-                              "overlaps itself, which STEP export cannot build as a "
-                              "correct solid yet; export a mesh, or move its control points")
-    if folds_onto_itself(primitive):
-        return _folding_solid(primitive, normalization, what)
+    # Where the axis comes back, the sweep overlaps itself: the closed form counts that
+    # twice, and a loft through its sections would intersect itself.
+    meets = _sections_meet(primitive)
+    if meets or folds_onto_itself(primitive):
+        return _sections_union_solid(primitive, normalization, what, forward=not meets)
     expected = closed_form_volume(primitive) * scale**3
     # The volume is almost always far inside the tolerance; should the interpolation
     # along t ever miss it, a finer one is tried before giving up.
@@ -524,20 +523,58 @@ def _ring_patches(rings: np.ndarray, t: np.ndarray, angles: np.ndarray
     return t_spline, patches
 
 
-def _folding_solid(primitive: SweepPrimitive, normalization: Normalization | None,
-                   what: str) -> Any:
-    """A primitive that folds onto itself, as the loft of forward sections: the profile
-    clamped short of the fold (as solid.py's forward tubes), so that its sweep runs
-    forward everywhere; the material beyond is left out. Margins from FOLD_MARGINS are
-    tried in turn (a wider one clamps more, so that sections across a tight bend no
-    longer meet, but leaves out more): the first whose sections neither cross nor meet
-    (solid.py's rules: a loft through them would overlap itself) and whose solid is
-    within FOLD_VOLUME_TOLERANCE of a quasi-Monte Carlo estimate of the true volume from
-    the exact inside test (fold_volume) is kept; if none is, the primitive is refused by
-    name."""
-    scale = 1.0 if normalization is None else normalization.scale
-    estimate: tuple[float, float] | None = None
-    lost = None
+def _sections_union_solid(primitive: SweepPrimitive, normalization: Normalization | None,
+                          what: str, forward: bool) -> Any:
+    """A primitive whose sections cross (it folds onto itself, or its axis comes back onto
+    itself): its solid is the union of its sections, whose volume the closed form does not
+    give, and a loft through the sections would overlap itself. When `forward`, the loft
+    of forward sections is tried first (_forward_solid: the sweep's own surfaces), then
+    lofts through parallel slices (_sliced_solid). A solid is written only when its
+    volume is within FOLD_VOLUME_TOLERANCE of a quasi-Monte Carlo estimate from the exact
+    inside test (fold_volume) with two standard errors to spare: a tolerance widened by
+    the estimate's own error let solids 1.1-1.6 % short through (BENCHMARKS.md, STEP
+    export). Otherwise the primitive is refused by name."""
+    scale3 = (1.0 if normalization is None else normalization.scale) ** 3
+    estimate, error = fold_volume(primitive)
+    volume = estimate * scale3
+    tolerance = FOLD_VOLUME_TOLERANCE - 2.0 * error / estimate
+    if tolerance <= 0.0:
+        raise StepExportError(f"{what}: its sections cross, and its volume cannot be "
+                              "estimated precisely enough to check a solid of it; export a "
+                              "mesh")
+    if forward:
+        solid = _forward_solid(primitive, normalization, what, volume, tolerance)
+        if solid is not None:
+            return solid
+    solid = _sliced_solid(primitive, normalization, what, volume, tolerance)
+    if solid is not None:
+        return solid
+    how, advice = (("folds onto itself", "make it thinner or its bend wider") if forward
+                   else ("comes back onto itself",
+                         "move its control points apart where its axis comes back"))
+    raise StepExportError(f"{what} {how} in a way STEP export cannot build as a correct "
+                          "solid (no loft through its sections or through parallel slices "
+                          f"of it is within 1% of its volume); export a mesh, or {advice}")
+
+
+def _accepted(solid: Any, volume: float, tolerance: float, what: str) -> bool:
+    """Whether a solid passes OpenCascade's checker and is within `tolerance` of volume."""
+    try:
+        _check_solid(solid, volume, tolerance, what,
+                     "the quasi-Monte Carlo estimate of its sections' union")
+    except StepExportError:
+        return False
+    return True
+
+
+def _forward_solid(primitive: SweepPrimitive, normalization: Normalization | None,
+                   what: str, volume: float, tolerance: float) -> Any | None:
+    """The loft of forward sections: the profile clamped short of the fold (as solid.py's
+    forward tubes), so that its sweep runs forward everywhere; the material beyond is
+    left out. Margins from FOLD_MARGINS are tried in turn (a wider one clamps more, so
+    that sections across a tight bend no longer meet, but leaves out more): the first
+    whose sections neither cross nor meet (solid.py's rules: a loft through them would
+    overlap itself) and whose solid is accepted; None if none is."""
     for margin in FOLD_MARGINS:
         t, rings, centres, tangents, angles = _clamped_rings(
             primitive, FOLD_STATIONS, FOLD_PROFILE_POINTS, margin)
@@ -547,32 +584,30 @@ def _folding_solid(primitive: SweepPrimitive, normalization: Normalization | Non
             continue
         t_knots, patches = _ring_patches(rings, t, angles)
         solid = _sewn_solid(primitive, SideSurface(t_knots, patches), normalization, what)
-        if estimate is None:
-            estimate = fold_volume(primitive)
-        volume, error = estimate[0] * scale**3, estimate[1] * scale**3
-        # Written only when its volume is within FOLD_VOLUME_TOLERANCE of the truth with
-        # two standard errors to spare: a tolerance widened by the estimate's own error
-        # let solids 1.1-1.6 % short through (BENCHMARKS.md, STEP export).
-        tolerance = FOLD_VOLUME_TOLERANCE - 2.0 * error / volume
-        if tolerance <= 0.0:
-            raise StepExportError(f"{what} folds onto itself, and its volume cannot be "
-                                  "estimated precisely enough to check a solid of it; "
-                                  "export a mesh")
-        try:
-            _check_solid(solid, volume, tolerance, what,
-                         "the quasi-Monte Carlo estimate of its folding sweep")
+        if _accepted(solid, volume, tolerance, what):
             return solid
+    return None
+
+
+def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None,
+                  what: str, volume: float, tolerance: float) -> Any | None:
+    """The loft through parallel slices of the exact solid (geometry/slices.py), along
+    the first direction across which every slice is one star-shaped region and whose
+    solid is accepted; None if there is none. Its surfaces interpolate the true boundary,
+    so the caps' rims and the fold's creases come out rounded by about a slice's spacing."""
+    surface = surface_samples(primitive)
+    for direction in slicing_directions(primitive, surface):
+        sliced = slice_rings(primitive, direction, surface)
+        if sliced is None:
+            continue
+        t_knots, patches = _ring_patches(sliced.rings, sliced.u, sliced.angles)
+        try:
+            solid = _sewn_solid(primitive, SideSurface(t_knots, patches), normalization, what)
         except StepExportError:
-            # Invalid, or too much or too little volume: a wider margin may still do.
-            short = 1.0 - solid_volume(solid) / volume
-            if 0.0 < short < 1.0:
-                lost = short if lost is None else min(lost, short)
-    detail = (f"the best solid built leaves out {100 * lost:.1f}% of it" if lost is not None
-              else "its sections meet across the bend however far they are clamped, or "
-                   "the loft through them is not a correct solid")
-    raise StepExportError(f"{what} folds onto itself too far to be built as a correct STEP "
-                          f"solid ({detail}); export a mesh, or make it thinner or its bend "
-                          "wider")
+            continue
+        if _accepted(solid, volume, tolerance, what):
+            return solid
+    return None
 
 
 def fold_volume(primitive: SweepPrimitive, replicates: int = FOLD_REPLICATES,

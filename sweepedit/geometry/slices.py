@@ -1,0 +1,188 @@
+"""Parallel slices of a primitive's exact solid, as rings of boundary points.
+
+A sweep that folds onto itself, or whose axis comes back onto itself, is the union of
+its sections, and sections that cross cannot be lofted. Its solid can still be lofted
+through slices by parallel planes, which never cross: if every plane across the solid
+meets it in one region that is star-shaped about a centre, the boundary of each region is
+a ring r(φ) around that centre, found on rays by bisection on the exact inside test, and
+a loft through the rings is the solid. The direction of the planes is searched for (the
+axis' chord, its principal directions, then a hemisphere of directions), since a bent
+solid is single-region only across some directions.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from typing import NamedTuple
+
+import numpy as np
+from scipy import ndimage
+
+from sweepedit.geometry.inside import inside_union
+from sweepedit.geometry.model import SweepPrimitive
+from sweepedit.geometry.sweep import sweep_surface
+
+# Slices per loft (spaced closer towards the ends, where the solid tapers), rays per slice
+# (a multiple of 4), cells of the occupancy grid per side of a slice's window, the ends'
+# inset as a share of the solid's extent, and bisection steps per ray.
+SLICES = 28
+RAYS = 48
+GRID = 48
+INSET = 2e-3
+BISECTIONS = 18
+# Directions tried after the chord and the principal ones: a Fibonacci hemisphere.
+HEMISPHERE = 40
+# Samples of the side surface: the solid's extent along a direction is attained there.
+SURFACE_STATIONS = 257
+SURFACE_ANGLES = 128
+
+
+class SliceRings(NamedTuple):
+    """u (S,) in [0, 1]: where each slice lies between the solid's two extremes along the
+    direction; rings (S, P, 3): the boundary at angles (P,) (uniform, from 0) about the
+    slice's centre, counter-clockwise about the direction."""
+
+    u: np.ndarray
+    rings: np.ndarray
+    angles: np.ndarray
+
+
+def surface_samples(primitive: SweepPrimitive) -> np.ndarray:
+    """Points of the side surface, (SURFACE_STATIONS * SURFACE_ANGLES, 3)."""
+    cps, profile, scaling = primitive.batch_arrays()
+    t = np.linspace(0.0, 1.0, SURFACE_STATIONS)
+    theta = np.linspace(0.0, 2.0 * np.pi, SURFACE_ANGLES, endpoint=False)
+    return sweep_surface(cps, profile, scaling, t, theta)[0].reshape(-1, 3)
+
+
+def slicing_directions(primitive: SweepPrimitive, surface: np.ndarray) -> Iterator[np.ndarray]:
+    """Unit directions (3,) to slice along, the likeliest first: the axis' chord, the
+    surface's principal directions, then HEMISPHERE directions spread over a hemisphere."""
+    chord = primitive.control_points[-1] - primitive.control_points[0]
+    _, _, principal = np.linalg.svd(surface - surface.mean(axis=0), full_matrices=False)
+    k = np.arange(HEMISPHERE) + 0.5
+    z = k / HEMISPHERE
+    turn = np.pi * (1.0 + math.sqrt(5.0)) * k
+    ring = np.sqrt(1.0 - z**2)
+    spread = np.stack([ring * np.cos(turn), ring * np.sin(turn), z], axis=-1)
+    for d in [chord, *principal, *spread]:
+        n = float(np.linalg.norm(d))
+        if n > 1e-12:
+            yield d / n
+
+
+def slicing_frame(direction: np.ndarray) -> np.ndarray:
+    """Rows (3, 3): the direction d and two unit vectors e1, e2 across it, (e1, e2, d)
+    right-handed."""
+    helper = np.eye(3)[int(np.argmin(np.abs(direction)))]
+    e1 = np.cross(direction, helper)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([direction, e1, np.cross(direction, e1)])
+
+
+def _slice_windows(local: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per slice at positions s (S,), a window (lo, hi, each (S, 2)) across the direction
+    that holds the slice: the surface samples near the slice (local (N, 3): along, across,
+    across), widened by half its size, within the whole surface's window."""
+    order = np.argsort(local[:, 0])
+    along = local[order, 0]
+    across = local[order, 1:]
+    whole_lo, whole_hi = across.min(axis=0), across.max(axis=0)
+    pad = 0.02 * float(np.max(whole_hi - whole_lo))
+    band = 1.5 * (along[-1] - along[0]) / (SURFACE_STATIONS - 1)
+    lo, hi = np.empty((len(s), 2)), np.empty((len(s), 2))
+    for i, si in enumerate(s):
+        a, b = np.searchsorted(along, [si - band, si + band])
+        if b - a < 8:  # a tip: the nearest samples
+            c = int(np.searchsorted(along, si))
+            a, b = max(0, c - 8), min(len(along), c + 8)
+        near_lo, near_hi = across[a:b].min(axis=0), across[a:b].max(axis=0)
+        half = 0.5 * (near_hi - near_lo) + pad
+        lo[i] = np.maximum(near_lo - half, whole_lo - pad)
+        hi[i] = np.minimum(near_hi + half, whole_hi + pad)
+    return lo, hi
+
+
+def _centres(occupied: np.ndarray, g1: np.ndarray, g2: np.ndarray) -> np.ndarray | None:
+    """Per slice, the grid point deepest inside its region -> (S, 2); None if a slice is
+    not one region without holes. occupied (S, G, G); g1, g2 (S, G) the grid's lines."""
+    centres = np.empty((len(occupied), 2))
+    for i, occ in enumerate(occupied):
+        _, regions = ndimage.label(occ, structure=np.ones((3, 3)))
+        _, outsides = ndimage.label(~occ)
+        if regions != 1 or outsides != 1:
+            return None
+        depth = ndimage.distance_transform_edt(np.pad(occ, 1))[1:-1, 1:-1]
+        a, b = np.unravel_index(int(np.argmax(depth)), depth.shape)
+        centres[i] = g1[i, a], g2[i, b]
+    return centres
+
+
+def _inside(primitive: SweepPrimitive, rows: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """The exact inside test at points local (..., 3) of the slicing frame -> bool (...)."""
+    return inside_union(local.reshape(-1, 3) @ rows, [primitive]).reshape(local.shape[:-1])
+
+
+def _ray_radii(primitive: SweepPrimitive, rows: np.ndarray, s: np.ndarray,
+               centres: np.ndarray, directions: np.ndarray, reach: float) -> np.ndarray | None:
+    """Distance from each slice's centre (S, 2) to its boundary along unit directions
+    (P, 2) -> (S, P); None where a ray leaves the region more than once (not star-shaped
+    about the centre) at GRID samples up to `reach`."""
+    S, P = len(s), len(directions)
+
+    def points(radii: np.ndarray) -> np.ndarray:  # radii (S, P, ...) -> (S, P, ..., 3)
+        extra = (1,) * (radii.ndim - 2)
+        across = (centres.reshape(S, 1, *extra, 2)
+                  + radii[..., None] * directions.reshape(1, P, *extra, 2))
+        along = np.broadcast_to(s.reshape(S, 1, *extra, 1), (*radii.shape, 1))
+        return np.concatenate([along, across], axis=-1)
+
+    steps = np.broadcast_to(np.linspace(0.0, reach, GRID), (S, P, GRID))
+    inside = _inside(primitive, rows, points(steps))
+    leaves = np.argmin(inside, axis=2)  # the first sample outside
+    later = np.arange(GRID) >= leaves[..., None]
+    if not inside[:, :, 0].all() or (leaves == 0).any() or (inside & later).any():
+        return None
+    lo, hi = steps[0, 0][leaves - 1], steps[0, 0][leaves]
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        hit = _inside(primitive, rows, points(mid))
+        lo, hi = np.where(hit, mid, lo), np.where(hit, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def slice_rings(primitive: SweepPrimitive, direction: np.ndarray,
+                surface: np.ndarray | None = None) -> SliceRings | None:
+    """The solid's boundary on SLICES planes across `direction` (3,), unit, as rings of
+    RAYS points; None if a slice is not one region, star-shaped about its centre.
+    `surface`: surface_samples(primitive), when already at hand."""
+    if surface is None:
+        surface = surface_samples(primitive)
+    rows = slicing_frame(direction)
+    local = surface @ rows.T
+    first, last = float(local[:, 0].min()), float(local[:, 0].max())
+    u = INSET + (1.0 - 2.0 * INSET) * 0.5 * (1.0 - np.cos(np.linspace(0.0, np.pi, SLICES)))
+    s = first + (last - first) * u
+    lo, hi = _slice_windows(local, s)
+    # A coarse look first: most directions tried are rejected by it, at a quarter of the cost.
+    for size in (GRID // 2, GRID):
+        w = np.linspace(0.0, 1.0, size)
+        g1 = lo[:, :1] + w * (hi[:, :1] - lo[:, :1])  # (S, size)
+        g2 = lo[:, 1:] + w * (hi[:, 1:] - lo[:, 1:])
+        shape = (SLICES, size, size)
+        grid = np.stack([np.broadcast_to(s[:, None, None], shape),
+                         np.broadcast_to(g1[:, :, None], shape),
+                         np.broadcast_to(g2[:, None, :], shape)], axis=-1)
+        centres = _centres(_inside(primitive, rows, grid), g1, g2)
+        if centres is None:
+            return None
+    angles = np.linspace(0.0, 2.0 * np.pi, RAYS, endpoint=False)
+    directions = np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+    reach = float(np.hypot(*(local[:, 1:].max(axis=0) - local[:, 1:].min(axis=0))))
+    radii = _ray_radii(primitive, rows, s, centres, directions, reach)
+    if radii is None:
+        return None
+    across = centres[:, None, :] + radii[..., None] * directions[None]
+    along = np.broadcast_to(s[:, None, None], (SLICES, RAYS, 1))
+    return SliceRings(u, np.concatenate([along, across], axis=-1) @ rows, angles)

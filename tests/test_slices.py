@@ -1,0 +1,53 @@
+"""Parallel slices of a primitive's exact solid (geometry/slices.py) against shapes whose
+slices are known in closed form."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sweepedit.geometry.model import SweepPrimitive
+from sweepedit.geometry.slices import INSET, RAYS, SLICES, slice_rings, slicing_frame
+
+# A straight round rod along x: length 0.6 (x in [-0.3, 0.3]), radius 0.1, no scaling.
+ROD = SweepPrimitive([[-0.3, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.0, 0.0]], a=0.1, b=0.1,
+                     degree=2.0)
+
+
+def test_slices_across_a_rod_are_its_circles() -> None:
+    sliced = slice_rings(ROD, np.array([1.0, 0.0, 0.0]))
+    assert sliced is not None
+    assert sliced.rings.shape == (SLICES, RAYS, 3)
+    # The slices span the rod end to end, inset by INSET of its length at each end.
+    x = sliced.rings[..., 0]
+    assert np.allclose(x, x[:, :1])
+    assert np.allclose(x[:, 0], -0.3 + 0.6 * sliced.u, atol=1e-12)
+    assert np.isclose(x[0, 0], -0.3 + 0.6 * INSET, rtol=0.0, atol=1e-12)
+    radius = np.hypot(sliced.rings[..., 1], sliced.rings[..., 2])
+    assert np.abs(radius - 0.1).max() < 1e-4
+    # Counter-clockwise about the direction, from angle 0 on.
+    rows = slicing_frame(np.array([1.0, 0.0, 0.0]))
+    across = (sliced.rings[0] - sliced.rings[0].mean(axis=0)) @ rows[1:].T
+    turn = np.unwrap(np.arctan2(across[:, 1], across[:, 0]))
+    assert np.all(np.diff(turn) > 0)
+
+
+def test_slices_along_a_rod_are_its_rectangles() -> None:
+    # Planes y = c cut the rod in rectangles |x| <= 0.3, |z| <= sqrt(0.01 - c^2).
+    sliced = slice_rings(ROD, np.array([0.0, 1.0, 0.0]))
+    assert sliced is not None
+    c = sliced.rings[:, :1, 1]
+    assert np.allclose(sliced.rings[..., 1], c)
+    half = np.sqrt(0.01 - c**2)
+    x, z = sliced.rings[..., 0], sliced.rings[..., 2]
+    on_side = np.abs(np.abs(z) - half) < 1e-4 * 0.6
+    on_cap = np.abs(np.abs(x) - 0.3) < 1e-4 * 0.6
+    assert np.all(on_side | on_cap)
+    assert np.all(np.abs(x) <= 0.3 + 1e-6) and np.all(np.abs(z) <= half + 1e-6)
+
+
+def test_a_slice_of_two_regions_is_refused() -> None:
+    # A U: planes across its arms (y = c for the arms along y) meet it twice.
+    u_bend = SweepPrimitive([[-0.2, -0.3, 0.0], [0.0, 0.5, 0.0], [0.2, -0.3, 0.0]], a=0.04,
+                            b=0.04, degree=2.0)
+    assert slice_rings(u_bend, np.array([0.0, 1.0, 0.0])) is None
+    assert slice_rings(u_bend, np.array([1.0, 0.0, 0.0])) is not None
