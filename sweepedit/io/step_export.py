@@ -557,14 +557,11 @@ def _sections_union_solid(primitive: SweepPrimitive, normalization: Normalizatio
                           f"of it is within 1% of its volume); export a mesh, or {advice}")
 
 
-def _accepted(solid: Any, volume: float, tolerance: float, what: str) -> bool:
-    """Whether a solid passes OpenCascade's checker and is within `tolerance` of volume."""
-    try:
-        _check_solid(solid, volume, tolerance, what,
-                     "the quasi-Monte Carlo estimate of its sections' union")
-    except StepExportError:
-        return False
-    return True
+def _checked_volume(solid: Any) -> float | None:
+    """The solid's volume if OpenCascade's checker passes it, else None."""
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    return solid_volume(solid) if BRepCheck_Analyzer(solid).IsValid() else None
 
 
 def _forward_solid(primitive: SweepPrimitive, normalization: Normalization | None,
@@ -574,7 +571,8 @@ def _forward_solid(primitive: SweepPrimitive, normalization: Normalization | Non
     left out. Margins from FOLD_MARGINS are tried in turn (a wider one clamps more, so
     that sections across a tight bend no longer meet, but leaves out more): the first
     whose sections neither cross nor meet (solid.py's rules: a loft through them would
-    overlap itself) and whose solid is accepted; None if none is."""
+    overlap itself) and whose solid is valid and within `tolerance` of `volume`; None if
+    none is, or once one is short (wider margins leave out more)."""
     for margin in FOLD_MARGINS:
         t, rings, centres, tangents, angles = _clamped_rings(
             primitive, FOLD_STATIONS, FOLD_PROFILE_POINTS, margin)
@@ -584,8 +582,11 @@ def _forward_solid(primitive: SweepPrimitive, normalization: Normalization | Non
             continue
         t_knots, patches = _ring_patches(rings, t, angles)
         solid = _sewn_solid(primitive, SideSurface(t_knots, patches), normalization, what)
-        if _accepted(solid, volume, tolerance, what):
+        got = _checked_volume(solid)
+        if got is not None and abs(got / volume - 1.0) <= tolerance:
             return solid
+        if got is not None and got < volume:
+            return None  # short of the volume: a wider margin leaves out more still
     return None
 
 
@@ -593,8 +594,9 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
                   what: str, volume: float, tolerance: float) -> Any | None:
     """The loft through parallel slices of the exact solid (geometry/slices.py), along
     the first direction across which every slice is one star-shaped region and whose
-    solid is accepted; None if there is none. Its surfaces interpolate the true boundary,
-    so the caps' rims and the fold's creases come out rounded by about a slice's spacing."""
+    solid is valid and within `tolerance` of `volume`; None if there is none. Its
+    surfaces interpolate the true boundary, so the caps' rims and the fold's creases come
+    out rounded by about a slice's spacing."""
     surface = surface_samples(primitive)
     for direction in slicing_directions(primitive, surface):
         sliced = slice_rings(primitive, direction, surface)
@@ -605,7 +607,8 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
             solid = _sewn_solid(primitive, SideSurface(t_knots, patches), normalization, what)
         except StepExportError:
             continue
-        if _accepted(solid, volume, tolerance, what):
+        got = _checked_volume(solid)
+        if got is not None and abs(got / volume - 1.0) <= tolerance:
             return solid
     return None
 
