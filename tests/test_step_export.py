@@ -25,6 +25,8 @@ from sweepedit.geometry.sweep import axis_points
 from sweepedit.io.params import write_abstraction
 from sweepedit.io.step_export import (
     CAD_MISSING,
+    FOLD_LOG2_POINTS,
+    FOLD_REPLICATES,
     ExportCancelledError,
     StepExportError,
     closed_form_volume,
@@ -261,7 +263,8 @@ def test_the_folding_check_volume_matches_closed_forms_and_plain_monte_carlo() -
     for prim in _curved():
         estimate, error = fold_volume(prim)
         assert abs(estimate - closed_form_volume(prim)) <= 4.0 * error, prim.name
-        assert error < monte_carlo_volume([prim], 8 << 15, seed=3)[1], prim.name
+        same_count = FOLD_REPLICATES << FOLD_LOG2_POINTS
+        assert error < monte_carlo_volume([prim], same_count, seed=3)[1], prim.name
     # A folding one: against plain Monte Carlo of the same inside test (another method).
     prim = SweepPrimitive([[-0.15, 0.0, 0.0], [0.0, 0.3, 0.0], [0.15, 0.0, 0.0]], a=0.2,
                           b=0.08, degree=2.0, name="fold")
@@ -269,7 +272,7 @@ def test_the_folding_check_volume_matches_closed_forms_and_plain_monte_carlo() -
     estimate, error = fold_volume(prim)
     plain, plain_error = monte_carlo_volume([prim], 2_000_000, seed=3)
     assert abs(estimate - plain) <= 4.0 * math.hypot(error, plain_error)
-    assert error < 0.001 * estimate
+    assert error < 0.0025 * estimate  # two of them leave most of the 1 % tolerance
     # The closed form integrates through the fold with a sign; the union is not that.
     assert abs(estimate / closed_form_volume(prim) - 1.0) > 0.005
 

@@ -105,7 +105,7 @@ FOLD_PROFILE_POINTS = 32
 # profile is clamped.
 FOLD_MARGINS = (0.1, 0.25, 0.4, 0.55, 0.7)
 FOLD_REPLICATES = 8
-FOLD_LOG2_POINTS = 15
+FOLD_LOG2_POINTS = 14
 FOLD_VOLUME_TOLERANCE = 0.01
 # Sewing tolerance, relative to the solid's size: neighbouring faces share their edge
 # curves exactly, so this only absorbs rounding.
@@ -622,9 +622,10 @@ def fold_volume(primitive: SweepPrimitive, replicates: int = FOLD_REPLICATES,
     box aligned with the axis' principal directions: the occupancy's boundary is smooth,
     so such points converge faster than random ones, and a thin diagonal primitive fills
     its own box several times better than the coordinate box. The standard error comes
-    from the spread of the replicates. On the folding primitives of the official files
-    and the K = 8 fits it is 0.06-0.2 % from 262k points in 0.2 s, where plain Monte Carlo
-    needed 0.4-2M points and 1-1.8 s for 0.21-0.26 % (BENCHMARKS.md, STEP export)."""
+    from the spread of the replicates. On the 122 folding primitives of the official files
+    and the K = 8 fits it is 0.05-0.28 % (median 0.13 %) from 131k points in 0.08 s (median),
+    where plain Monte Carlo needed 0.4-2M points and 1-1.8 s for 0.21-0.26 %
+    (BENCHMARKS.md, STEP export)."""
     from scipy.stats import qmc
 
     t = np.linspace(0.0, 1.0, 513)
