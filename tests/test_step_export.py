@@ -184,6 +184,11 @@ CROSSING = [
                    b=0.085, degree=2.1, scaling=(0.25, -0.08), name="hairpin"),
     SweepPrimitive([[-0.08, 0.23, -0.27], [0.02, 0.05, 0.33], [0.08, 0.23, -0.27]], a=0.03,
                    b=0.03, degree=2.1, scaling=(0.0, 0.13), name="vee"),
+    # From a K = 8 fit of eight.stl: the loft of its forward sections (the profile clamped
+    # short of the fold) passed the checker and the volume check, but intersected itself.
+    SweepPrimitive([[0.0934, -0.0755, 0.0825], [0.0803, 0.0174, 0.2435],
+                    [0.0180, 0.0367, 0.0129]], a=0.0542, b=0.0223, degree=1.715,
+                   scaling=(0.2368, 0.0638), name="eight6"),
 ]
 
 
@@ -200,6 +205,11 @@ def test_sweeps_whose_sections_cross_are_built_through_slices(prim: SweepPrimiti
     # padded by the profile's reach (not the exporter's quasi-Monte Carlo).
     estimate, error = _monte_carlo([prim], 1_000_000, pad=1.5 * max(prim.a, prim.b))
     assert abs(solid_volume(solids[0].shape) / estimate - 1.0) <= 0.01 + 4 * error / estimate
+    # OpenCascade's own check for boolean operations, self-interference included (the
+    # plain checker passes self-intersecting lofts).
+    from OCP.BRepAlgoAPI import BRepAlgoAPI_Check
+
+    assert BRepAlgoAPI_Check(solids[0].shape, True, True).IsValid()
 
 
 @needs_occ

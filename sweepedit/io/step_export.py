@@ -19,11 +19,10 @@ before anything is written; a union is checked against a Monte Carlo estimate fr
 exact inside test. A sweep whose sections cross (it folds onto itself: its profile
 reaches past the axis' centre of curvature; or its axis comes back onto itself) would
 loft into a self-intersecting solid that OpenCascade's checker passes. It is built as a
-loft through forward sections (the profile clamped short of the fold, as the solid
-mesher's forward tubes), else as a loft through parallel slices of the true solid
-(geometry/slices.py), and written only when that is within 1% of a quasi-Monte Carlo
-estimate of its true volume; otherwise it is refused with an error naming it (3 of
-the 122 folding primitives of the official files and the K = 8 fits of the 30 shapes).
+loft through parallel slices of the true solid instead (geometry/slices.py), written
+only when that is within 1% of a quasi-Monte Carlo estimate of its true volume, and
+otherwise refused with an error naming it (3 of the 122 folding primitives of the
+official files and the K = 8 fits of the 30 shapes).
 
 OpenCascade (the `cad` extra, package cadquery-ocp-novtk) is imported only when a STEP
 file is made, so the rest of sweepedit works without it.
@@ -52,16 +51,7 @@ from sweepedit.geometry.model import (
     folds_onto_itself,
 )
 from sweepedit.geometry.slices import slice_rings, slicing_directions, surface_samples
-
-# The solid mesher's rules for where a sweep's sections cross or meet (private there, but
-# the same rule must cut the B-rep runs as cuts its mesh pieces).
-from sweepedit.geometry.solid import (
-    _crossed,
-    _meeting_sections,
-    _runs,
-    _sample,
-    profile_angles,
-)
+from sweepedit.geometry.solid import profile_angles
 from sweepedit.geometry.sweep import (
     axis_frames,
     axis_points,
@@ -96,14 +86,8 @@ VOLUME_TOLERANCE = 1e-3
 UNION_TOLERANCE = 0.01
 UNION_SIGMAS = 4.0
 UNION_SAMPLES = 300_000
-# Folding sweeps: stations (the least number; solid.py adds more in tight bends), profile
-# points (a multiple of 4), and the quasi-Monte Carlo points (fold_volume) and tolerance
-# of their check.
-FOLD_STATIONS = 24
-FOLD_PROFILE_POINTS = 32
-# Fold margins tried, least first: how far short of the fold (in the fold rate J) the
-# profile is clamped.
-FOLD_MARGINS = (0.1, 0.25, 0.4, 0.55, 0.7)
+# Sweeps whose sections cross: the quasi-Monte Carlo points of their volume (fold_volume),
+# 8 scrambled Sobol sets of 2^14, and the tolerance of their check.
 FOLD_REPLICATES = 8
 FOLD_LOG2_POINTS = 14
 FOLD_VOLUME_TOLERANCE = 0.01
@@ -419,9 +403,9 @@ def primitive_solid(primitive: SweepPrimitive, index: int = 0,
     scale = 1.0 if normalization is None else normalization.scale
     # Where the axis comes back, the sweep overlaps itself: the closed form counts that
     # twice, and a loft through its sections would intersect itself.
-    meets = _sections_meet(primitive)
-    if meets or folds_onto_itself(primitive):
-        return _sections_union_solid(primitive, normalization, what, forward=not meets)
+    folds = folds_onto_itself(primitive)
+    if folds or _sections_meet(primitive):
+        return _sections_union_solid(primitive, normalization, what, folds)
     expected = closed_form_volume(primitive) * scale**3
     # The volume is almost always far inside the tolerance; should the interpolation
     # along t ever miss it, a finer one is tried before giving up.
@@ -466,24 +450,6 @@ def _sewn_solid(primitive: SweepPrimitive, surf: SideSurface,
 # --------------------------------------------------------------------------- folding
 
 
-def _clamped_rings(primitive: SweepPrimitive, stations: int, points: int, margin: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """solid.py's forward sections with a fold margin of one's own: at its stations, each
-    profile point pulled towards the axis onto the line where the fold rate
-    J = 1 - o . q is `margin`, wherever it is beyond it at a sample of an adjacent
-    segment -> t (S,), rings (S, P, 3), centres (S, 3), tangents (S, 3), angles (P,)."""
-    angles = profile_angles(primitive.degree, points)
-    r = _sample(primitive, stations, points)
-    reach = np.einsum("pc,smc->smp", r.xy, r.q)  # o . q, (S - 1, M, P)
-    with np.errstate(divide="ignore"):
-        lam = np.minimum(np.where(reach > 0.0, (1.0 - margin) / reach, np.inf).min(axis=1),
-                         1.0)  # per segment, (S - 1, P)
-    ones = np.ones_like(lam[:1])
-    lam = np.minimum(np.vstack([lam, ones]), np.vstack([ones, lam]))  # per station
-    rings = r.world(np.arange(len(r.t))[:, None], lam[:, :, None] * r.xy[None])
-    return r.t, rings, r.centres, r.T, angles
-
-
 def _sections_meet(primitive: SweepPrimitive, samples: int = 512) -> bool:
     """Whether the sweep may overlap itself where its axis comes back: two axis points
     further apart along the axis than π times the largest profile radius (closer ones
@@ -524,37 +490,36 @@ def _ring_patches(rings: np.ndarray, t: np.ndarray, angles: np.ndarray
 
 
 def _sections_union_solid(primitive: SweepPrimitive, normalization: Normalization | None,
-                          what: str, forward: bool) -> Any:
+                          what: str, folds: bool) -> Any:
     """A primitive whose sections cross (it folds onto itself, or its axis comes back onto
     itself): its solid is the union of its sections, whose volume the closed form does not
-    give, and a loft through the sections would overlap itself. When `forward`, the loft
-    of forward sections is tried first (_forward_solid: the sweep's own surfaces), then
-    lofts through parallel slices (_sliced_solid). A solid is written only when its
-    volume is within FOLD_VOLUME_TOLERANCE of a quasi-Monte Carlo estimate from the exact
-    inside test (fold_volume) with two standard errors to spare: a tolerance widened by
-    the estimate's own error let solids 1.1-1.6 % short through (BENCHMARKS.md, STEP
-    export). Otherwise the primitive is refused by name."""
+    give, and a loft through the sections would overlap itself. It is lofted through
+    parallel slices of the true solid instead (_sliced_solid), and written only when that
+    is within FOLD_VOLUME_TOLERANCE of a quasi-Monte Carlo estimate from the exact inside
+    test (fold_volume) with two standard errors to spare: a tolerance widened by the
+    estimate's own error let solids 1.1-1.6 % short through (BENCHMARKS.md, STEP export).
+    Otherwise the primitive is refused by name.
+
+    Lofts through forward sections (the profile clamped short of the fold, as the solid
+    mesher's forward tubes) kept the sweep's own faces, but OpenCascade's self-interference
+    check (BRepAlgoAPI_Check) failed 19 of the 48 written, which broke unions; slices by
+    parallel planes cannot cross, and build as many (BENCHMARKS.md, STEP export)."""
     scale3 = (1.0 if normalization is None else normalization.scale) ** 3
     estimate, error = fold_volume(primitive)
-    volume = estimate * scale3
     tolerance = FOLD_VOLUME_TOLERANCE - 2.0 * error / estimate
     if tolerance <= 0.0:
         raise StepExportError(f"{what}: its sections cross, and its volume cannot be "
                               "estimated precisely enough to check a solid of it; export a "
                               "mesh")
-    if forward:
-        solid = _forward_solid(primitive, normalization, what, volume, tolerance)
-        if solid is not None:
-            return solid
-    solid = _sliced_solid(primitive, normalization, what, volume, tolerance)
+    solid = _sliced_solid(primitive, normalization, what, estimate * scale3, tolerance)
     if solid is not None:
         return solid
-    how, advice = (("folds onto itself", "make it thinner or its bend wider") if forward
+    how, advice = (("folds onto itself", "make it thinner or its bend wider") if folds
                    else ("comes back onto itself",
                          "move its control points apart where its axis comes back"))
     raise StepExportError(f"{what} {how} in a way STEP export cannot build as a correct "
-                          "solid (no loft through its sections or through parallel slices "
-                          f"of it is within 1% of its volume); export a mesh, or {advice}")
+                          "solid (no loft through parallel slices of it is within 1% of "
+                          f"its volume); export a mesh, or {advice}")
 
 
 def _checked_volume(solid: Any) -> float | None:
@@ -562,32 +527,6 @@ def _checked_volume(solid: Any) -> float | None:
     from OCP.BRepCheck import BRepCheck_Analyzer
 
     return solid_volume(solid) if BRepCheck_Analyzer(solid).IsValid() else None
-
-
-def _forward_solid(primitive: SweepPrimitive, normalization: Normalization | None,
-                   what: str, volume: float, tolerance: float) -> Any | None:
-    """The loft of forward sections: the profile clamped short of the fold (as solid.py's
-    forward tubes), so that its sweep runs forward everywhere; the material beyond is
-    left out. Margins from FOLD_MARGINS are tried in turn (a wider one clamps more, so
-    that sections across a tight bend no longer meet, but leaves out more): the first
-    whose sections neither cross nor meet (solid.py's rules: a loft through them would
-    overlap itself) and whose solid is valid and within `tolerance` of `volume`; None if
-    none is, or once one is short (wider margins leave out more)."""
-    for margin in FOLD_MARGINS:
-        t, rings, centres, tangents, angles = _clamped_rings(
-            primitive, FOLD_STATIONS, FOLD_PROFILE_POINTS, margin)
-        crossed = _crossed(rings, centres, tangents, forward=True)
-        if crossed.any() or len(_runs(~crossed, tangents,
-                                      _meeting_sections(rings, centres, tangents))) != 1:
-            continue
-        t_knots, patches = _ring_patches(rings, t, angles)
-        solid = _sewn_solid(primitive, SideSurface(t_knots, patches), normalization, what)
-        got = _checked_volume(solid)
-        if got is not None and abs(got / volume - 1.0) <= tolerance:
-            return solid
-        if got is not None and got < volume:
-            return None  # short of the volume: a wider margin leaves out more still
-    return None
 
 
 def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None,
