@@ -372,8 +372,12 @@ class SliderSpin(QWidget):
     def set_value(self, value: float) -> None:
         """Show `value` without emitting value_changed."""
         with QSignalBlocker(self.spin), QSignalBlocker(self.slider):
-            self.spin.setSpecialValueText("")
-            self.spin.setValue(value)
+            # Both repaint the box even when nothing changes, and a drag refreshes the
+            # panel on every mouse move.
+            if self.spin.specialValueText():
+                self.spin.setSpecialValueText("")
+            if self.spin.textFromValue(value) != self.spin.textFromValue(self.spin.value()):
+                self.spin.setValue(value)
             self.slider.setValue(self._to_steps(value))
 
     def set_blank(self) -> None:
@@ -511,6 +515,7 @@ class PropertiesPanel(QWidget):
             s.lineEdit().returnPressed.connect(self.apply_transform)
 
         self.color_button = QPushButton("Colour…")
+        self._shown_color: str | None = None  # the colour its icon shows
         self.color_button.setToolTip("Choose the primitive's display colour")
         self.color_button.clicked.connect(self.choose_color)
         header = QHBoxLayout()
@@ -574,8 +579,9 @@ class PropertiesPanel(QWidget):
         for g in (self.cp_group, self.profile_group, self.scaling_group, self.transform_group):
             g.setEnabled(enabled)
         self.color_button.setEnabled(prim is not None and self._editable)
-        if prim is not None:
+        if prim is not None and prim.color != self._shown_color:  # setIcon always repaints
             self.color_button.setIcon(color_icon(prim.color))
+            self._shown_color = prim.color
         if prim is None:
             self.title.setText("No primitive selected")
             self.title.setToolTip("")

@@ -49,6 +49,7 @@ PICK_PIXELS = 11  # how close (in device pixels) a click must be to a handle
 AXIS_SAMPLES = 128
 CLICK_SLOP = 4  # pixels a press may move and still count as a click
 GRID_STEP = 0.01  # Ctrl-drag snaps the offset to this (normalised frame: the shape is ~1)
+DRAG_KEYS = "(X/Y/Z axis, Shift plane, Ctrl snap, Esc cancel)"  # shown during a drag
 AXIS_PICK_SAMPLES = 256
 # Camera presets (Blender's numpad views, z up): the direction from the focal point to
 # the camera, and the view-up vector.
@@ -210,13 +211,17 @@ class SweepScene:
         for actor in (self._polygon_actor, self._axis_actor, self._handles_actor):
             actor.VisibilityOff()
             overlay.AddActor(actor)
-        # The offset of a drag in progress (and its constraint), bottom left.
+        # The offset of a drag in progress (and its constraint), bottom left, with the keys
+        # above it: a text of its own, rasterised once, as the offset's is on every move.
         self._offset_actor = vtk.vtkTextActor()
-        self._offset_actor.GetTextProperty().SetFontSize(16)
-        self._offset_actor.GetTextProperty().SetColor(0.1, 0.1, 0.1)
-        self._offset_actor.SetPosition(12, 12)
-        self._offset_actor.VisibilityOff()
-        overlay.AddViewProp(self._offset_actor)
+        self._keys_actor = vtk.vtkTextActor()
+        self._keys_actor.SetInput(DRAG_KEYS)
+        for position, actor in ((12, self._offset_actor), (36, self._keys_actor)):
+            actor.GetTextProperty().SetFontSize(16)
+            actor.GetTextProperty().SetColor(0.1, 0.1, 0.1)
+            actor.SetPosition(12, position)
+            actor.VisibilityOff()
+            overlay.AddViewProp(actor)
 
     def _before_render(self, *_: Any) -> None:
         main = self.plotter.renderer
@@ -576,23 +581,24 @@ class SweepScene:
 
     @property
     def drag_text(self) -> str:
-        """What the view shows during a drag: the offset and the constraint."""
-        if self._drag is None:
-            return ""
+        """What the view shows during a drag: the offset and the constraint, and the keys."""
+        return f"{self._offset_text()}   {DRAG_KEYS}" if self._drag is not None else ""
+
+    def _offset_text(self) -> str:
         dx, dy, dz = self._drag_delta
         text = f"offset  x {dx:+.4f}  y {dy:+.4f}  z {dz:+.4f}"
         if self._constraint is not None:
             kind, a = self._constraint
             text += (f"   along {'XYZ'[a]}" if kind == "axis"
                      else f"   in the {''.join(c for i, c in enumerate('XYZ') if i != a)} plane")
-        return text + "   (X/Y/Z axis, Shift plane, Ctrl snap, Esc cancel)"
+        return text
 
     def _show_offset(self) -> None:
-        if self._drag is None:
-            self._offset_actor.VisibilityOff()
-        else:
-            self._offset_actor.SetInput(self.drag_text)
-            self._offset_actor.VisibilityOn()
+        dragging = self._drag is not None
+        if dragging:
+            self._offset_actor.SetInput(self._offset_text())
+        self._offset_actor.SetVisibility(dragging)
+        self._keys_actor.SetVisibility(dragging)
 
     def drag_to(self, x: float, y: float, snap: bool = False) -> bool:
         """Move the dragged handle under display point x, y: in the view plane, or along
