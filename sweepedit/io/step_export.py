@@ -472,8 +472,9 @@ def _sections_meet(primitive: SweepPrimitive, samples: int = 512) -> bool:
 
 def _ring_patches(rings: np.ndarray, t: np.ndarray, angles: np.ndarray
                   ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
-    """Four B-spline patches interpolating rings (S, P, 3) at stations t (S,), split at
-    the profile's tips (indices 0, P/4, P/2, 3P/4) -> t knots, [(θ knots, poles)]."""
+    """Four B-spline patches interpolating rings (S, P, 3) at stations t (S,), split into
+    quarters at indices 0, P/4, P/2, 3P/4 (a profile's tips, or a slice's rays along the
+    frame's axes) -> t knots, [(θ knots, poles)]."""
     P = rings.shape[1]
     patches = []
     t_spline = None
