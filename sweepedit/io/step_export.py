@@ -667,6 +667,15 @@ def fuse_solids(solids: Sequence[Any]) -> Any:
     return fuse.Shape()
 
 
+def fuse_one_at_a_time(solids: Sequence[Any]) -> Any:
+    """The boolean union of OpenCascade solids, fused one at a time, the largest first."""
+    order = sorted(solids, key=solid_volume, reverse=True)
+    fused = order[0]
+    for solid in order[1:]:
+        fused = fuse_solids([fused, solid])
+    return fused
+
+
 # --------------------------------------------------------------------------- writing
 
 
@@ -787,14 +796,23 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
         solids.append(primitive_solid(prim, i, normalization))
     if union:
         step(len(chosen), "fusing the solids")
-        fused = fuse_solids(solids)
-        step(len(chosen) + 1, "checking the union against the exact inside test")
         primitives = [p for _, p in chosen]
         estimate, error = monte_carlo_volume(primitives)
         scale3 = (normalization.scale if normalization else 1.0) ** 3
         tolerance = max(UNION_TOLERANCE, UNION_SIGMAS * error / estimate)
-        _check_solid(fused, estimate * scale3, tolerance, "the union",
-                     "the exact inside test's Monte Carlo estimate")
+        try:
+            fused = fuse_solids(solids)
+            step(len(chosen) + 1, "checking the union against the exact inside test")
+            _check_solid(fused, estimate * scale3, tolerance, "the union",
+                         "the exact inside test's Monte Carlo estimate")
+        except StepExportError:
+            # OpenCascade's fuse of all at once sometimes drops material or comes out
+            # invalid where one solid at a time, the largest first, does not (4 of the
+            # 7 files it failed on in the benchmark); that is checked just the same.
+            step(len(chosen) + 1, "fusing the solids one at a time")
+            fused = fuse_one_at_a_time(solids)
+            _check_solid(fused, estimate * scale3, tolerance, "the union",
+                         "the exact inside test's Monte Carlo estimate")
         parts = [(fused, path.stem, primitives[0].color)]
     else:
         parts = [(s, p.name or f"primitive {i}", p.color)
