@@ -100,20 +100,11 @@ class NativeView(QVTKRenderWindowInteractor, BasePlotter):
 
 
 def frame_image(render_window: Any) -> QImage:
-    """The render window's current frame as an RGB QImage (a copy)."""
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-    from vtkmodules.vtkRenderingCore import vtkWindowToImageFilter
+    """The render window's last frame as an RGB QImage (a copy), top row first."""
+    from pyvista.plotting.utilities import image_from_window
 
-    grab = vtkWindowToImageFilter()
-    grab.SetInput(render_window)
-    grab.SetInputBufferTypeToRGB()
-    grab.ReadFrontBufferOff()  # the frame VTK rendered, not what a window manager shows
-    grab.ShouldRerenderOff()
-    grab.Update()
-    data = grab.GetOutput()
-    w, h, _ = data.GetDimensions()
-    pixels = vtk_to_numpy(data.GetPointData().GetScalars()).reshape(h, w, 3)
-    rows = np.ascontiguousarray(pixels[::-1])  # VTK's first row is the bottom one
+    rows = np.ascontiguousarray(image_from_window(render_window, ignore_alpha=True))
+    h, w, _ = rows.shape
     return QImage(rows.data, w, h, 3 * w, QImage.Format.Format_RGB888).copy()
 
 

@@ -762,7 +762,6 @@ class MainWindow(QMainWindow):
         """Write the 3D view (or the whole window) as a PNG, atomically."""
         path = Path(path)
         try:
-            self.scene.render_now()
             image = self.window_image() if full_window else self.view_image()
             from sweepedit.io.params import atomic_write_bytes
 
