@@ -1,12 +1,22 @@
-"""Parallel slices of a primitive's exact solid (geometry/slices.py) against shapes whose
-slices are known in closed form."""
+"""Slices of a primitive's exact solid (geometry/slices.py) against shapes whose slices
+are known in closed form."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from sweepedit.geometry.model import SweepPrimitive
-from sweepedit.geometry.slices import INSET, RAYS, SLICES, slice_rings, slicing_frame
+from sweepedit.geometry.slices import (
+    INSET,
+    RAYS,
+    SLICES,
+    ParallelPlanes,
+    caps_pencil,
+    slice_rings,
+    slicing_frame,
+    surface_samples,
+)
 
 # A straight round rod along x: length 0.6 (x in [-0.3, 0.3]), radius 0.1, no scaling.
 ROD = SweepPrimitive([[-0.3, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.0, 0.0]], a=0.1, b=0.1,
@@ -14,7 +24,7 @@ ROD = SweepPrimitive([[-0.3, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.0, 0.0]], a=0.1
 
 
 def test_slices_across_a_rod_are_its_circles() -> None:
-    sliced = slice_rings(ROD, np.array([1.0, 0.0, 0.0]))
+    sliced = slice_rings(ROD, ParallelPlanes(np.array([1.0, 0.0, 0.0])))
     assert sliced is not None
     assert sliced.rings.shape == (SLICES, RAYS, 3)
     # The slices span the rod end to end, inset by INSET of its length at each end.
@@ -33,7 +43,7 @@ def test_slices_across_a_rod_are_its_circles() -> None:
 
 def test_slices_along_a_rod_are_its_rectangles() -> None:
     # Planes y = c cut the rod in rectangles |x| <= 0.3, |z| <= sqrt(0.01 - c^2).
-    sliced = slice_rings(ROD, np.array([0.0, 1.0, 0.0]))
+    sliced = slice_rings(ROD, ParallelPlanes(np.array([0.0, 1.0, 0.0])))
     assert sliced is not None
     c = sliced.rings[:, :1, 1]
     assert np.allclose(sliced.rings[..., 1], c)
@@ -42,12 +52,40 @@ def test_slices_along_a_rod_are_its_rectangles() -> None:
     on_side = np.abs(np.abs(z) - half) < 1e-4 * 0.6
     on_cap = np.abs(np.abs(x) - 0.3) < 1e-4 * 0.6
     assert np.all(on_side | on_cap)
-    assert np.all(np.abs(x) <= 0.3 + 1e-6) and np.all(np.abs(z) <= half + 1e-6)
+    # within the bisection's precision (2^-12 / 47 of the width, 0.63 here) outside
+    assert np.all(np.abs(x) <= 0.3 + 1e-5) and np.all(np.abs(z) <= half + 1e-5)
 
 
 def test_a_slice_of_two_regions_is_refused() -> None:
     # A U: planes across its arms (y = c for the arms along y) meet it twice.
     u_bend = SweepPrimitive([[-0.2, -0.3, 0.0], [0.0, 0.5, 0.0], [0.2, -0.3, 0.0]], a=0.04,
                             b=0.04, degree=2.0)
-    assert slice_rings(u_bend, np.array([0.0, 1.0, 0.0])) is None
-    assert slice_rings(u_bend, np.array([1.0, 0.0, 0.0])) is not None
+    assert slice_rings(u_bend, ParallelPlanes(np.array([0.0, 1.0, 0.0]))) is None
+    assert slice_rings(u_bend, ParallelPlanes(np.array([1.0, 0.0, 0.0]))) is not None
+
+
+# A bend that does not fold: one Bezier segment from (0.3, 0, 0) up +y to (0, 0.3, 0)
+# along -x. Its caps lie in the planes y = 0 and x = 0, which meet on the z axis.
+BEND = SweepPrimitive([[0.3, 0.0, 0.0], [0.3, 0.3, 0.0], [0.0, 0.3, 0.0]], a=0.05, b=0.04,
+                      degree=2.5)
+
+
+def test_the_caps_pencil_turns_about_the_line_where_the_caps_planes_meet() -> None:
+    surface = surface_samples(BEND)
+    pencil = caps_pencil(BEND, surface)
+    assert pencil is not None
+    assert np.allclose(np.abs(pencil.rows[0]), [0.0, 0.0, 1.0], atol=1e-12)
+    assert np.allclose(pencil.origin[:2], 0.0, atol=1e-12)
+    # local coordinates: the half-plane's angle, the position along the line, the distance
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-0.5, 0.5, (200, 3))
+    local = pencil.to_local(points)
+    assert np.allclose(local[:, 1], points @ pencil.rows[0])
+    assert np.allclose(local[:, 2], np.hypot(points[:, 0], points[:, 1]))
+    assert np.allclose(pencil.to_world(local), points, atol=1e-12)
+    # each cap's rim lies in one half-plane, a quarter turn apart
+    angle = pencil.to_local(surface.reshape(257, 128, 3)[[0, -1]])[..., 0]
+    assert np.ptp(angle, axis=1).max() < 1e-9
+    assert abs(angle[1, 0] - angle[0, 0]) == pytest.approx(np.pi / 2, abs=1e-9)
+    # straight: the caps are parallel, there is no such line
+    assert caps_pencil(ROD, surface_samples(ROD)) is None

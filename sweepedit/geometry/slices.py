@@ -1,13 +1,19 @@
-"""Parallel slices of a primitive's exact solid, as rings of boundary points.
+"""Slices of a primitive's exact solid by planes that do not cross, as rings of boundary
+points.
 
 A sweep that folds onto itself, or whose axis comes back onto itself, is the union of
 its sections, and sections that cross cannot be lofted. Its solid can still be lofted
-through slices by parallel planes, which never cross: if every plane across the solid
-meets it in one region that is star-shaped about a centre, the boundary of each region is
-a ring r(φ) around that centre, found on rays by bisection on the exact inside test, and
-a loft through the rings is the solid. The direction of the planes is searched for (the
-axis' chord, its principal directions, then a hemisphere of directions), since a bent
-solid is single-region only across some directions.
+through slices by planes that do not cross inside it: if every plane meets the solid in
+one region that is star-shaped about a centre, the boundary of each region is a ring
+r(φ) around that centre, found on rays by bisection on the exact inside test, and a loft
+through the rings is the solid.
+
+Two families of planes are tried. First parallel planes (ParallelPlanes), across the
+axis' chord, its principal directions, then a hemisphere of directions, since a bent
+solid is single-region only across some. Then the half-planes about the line where the
+planes of the two caps meet (PlanesThroughLine): they meet only on that line, so they do
+not cross in a solid the line misses, and for a tube bent in an arc they are its
+cross-sections.
 """
 
 from __future__ import annotations
@@ -21,27 +27,76 @@ from scipy import ndimage
 
 from sweepedit.geometry.inside import inside_union
 from sweepedit.geometry.model import SweepPrimitive
-from sweepedit.geometry.sweep import sweep_surface
+from sweepedit.geometry.sweep import axis_points_tangents, sweep_surface
 
 # Slices per loft (spaced closer towards the ends, where the solid tapers), rays per slice
 # (a multiple of 4), cells of the occupancy grid per side of a slice's window, the ends'
-# inset as a share of the solid's extent, and bisection steps per ray.
+# inset as a share of the solid's extent, and bisection steps per ray (after the GRID
+# samples along it: 2^-12 / 47, 5e-6 of the slice's width).
 SLICES = 28
 RAYS = 48
 GRID = 48
 INSET = 2e-3
-BISECTIONS = 18
+BISECTIONS = 12
 # Directions tried after the chord and the principal ones: a Fibonacci hemisphere.
 HEMISPHERE = 40
 # Samples of the side surface: the solid's extent along a direction is attained there.
 SURFACE_STATIONS = 257
 SURFACE_ANGLES = 128
+# Half-planes about a line are tried when the caps' planes meet at this angle or more
+# (radians), the line clears the solid by CLEARANCE of its size, and the solid spans
+# less than MAX_SPAN about it (beyond, the angles wrap round).
+MIN_CAP_ANGLE = 0.05
+CLEARANCE = 0.02
+MAX_SPAN = 0.95 * np.pi
+
+
+class ParallelPlanes:
+    """Planes across a unit direction (3,). Local coordinates (..., 3) of a point: its
+    position along the direction, then two coordinates across it (slicing_frame)."""
+
+    def __init__(self, direction: np.ndarray) -> None:
+        self.rows = slicing_frame(direction)
+
+    def to_local(self, points: np.ndarray) -> np.ndarray:
+        return points @ self.rows.T
+
+    def to_world(self, local: np.ndarray) -> np.ndarray:
+        return local @ self.rows
+
+
+class PlanesThroughLine:
+    """Half-planes bounded by the line through `origin` (3,) along rows[0]; rows (3, 3)
+    orthonormal, right-handed. Local coordinates (..., 3) of a point: the angle of its
+    half-plane about the line from rows[1] towards rows[2], its position along the line,
+    and its distance from the line. Ordered by angle, the half-planes' normals are the
+    direction of increasing angle, and (along the line, distance) turn counter-clockwise
+    about it, as for ParallelPlanes."""
+
+    def __init__(self, origin: np.ndarray, rows: np.ndarray) -> None:
+        self.origin = origin
+        self.rows = rows
+
+    def to_local(self, points: np.ndarray) -> np.ndarray:
+        q = (points - self.origin) @ self.rows.T
+        return np.stack([np.arctan2(q[..., 2], q[..., 1]), q[..., 0],
+                         np.hypot(q[..., 1], q[..., 2])], axis=-1)
+
+    def to_world(self, local: np.ndarray) -> np.ndarray:
+        angle, along = local[..., 0:1], local[..., 1:2]
+        # Past the line is not in the half-plane: onto the line, which the solid misses.
+        distance = np.maximum(local[..., 2:3], 0.0)
+        return (self.origin + along * self.rows[0]
+                + distance * (np.cos(angle) * self.rows[1] + np.sin(angle) * self.rows[2]))
+
+
+SlicingPlanes = ParallelPlanes | PlanesThroughLine
 
 
 class SliceRings(NamedTuple):
-    """u (S,) in [0, 1]: where each slice lies between the solid's two extremes along the
-    direction; rings (S, P, 3): the boundary at angles (P,) (uniform, from 0) about the
-    slice's centre, counter-clockwise about the direction."""
+    """u (S,) in [0, 1]: where each slice lies between the solid's two extremes across
+    the planes; rings (S, P, 3): the boundary at angles (P,) (uniform, from 0) about the
+    slice's centre, counter-clockwise about the planes' normal."""
 
     u: np.ndarray
     rings: np.ndarray
@@ -54,6 +109,49 @@ def surface_samples(primitive: SweepPrimitive) -> np.ndarray:
     t = np.linspace(0.0, 1.0, SURFACE_STATIONS)
     theta = np.linspace(0.0, 2.0 * np.pi, SURFACE_ANGLES, endpoint=False)
     return sweep_surface(cps, profile, scaling, t, theta)[0].reshape(-1, 3)
+
+
+def caps_pencil(primitive: SweepPrimitive, surface: np.ndarray) -> PlanesThroughLine | None:
+    """The half-planes about the line where the planes of the two caps meet, bounded so
+    that the solid lies on their side of it; None where the caps are (nearly) parallel,
+    the line comes within CLEARANCE of the solid's size, or the solid spans MAX_SPAN or
+    more about it. surface: surface_samples(primitive)."""
+    points, tangents = axis_points_tangents(primitive.control_points[None],
+                                            np.array([0.0, 1.0]))
+    (c0, c1), (t0, t1) = points[0], tangents[0]
+    line = np.cross(t0, t1)
+    sine = float(np.linalg.norm(line))
+    if sine < math.sin(MIN_CAP_ANGLE):
+        return None
+    line /= sine
+    # The point of the line halfway along it between the caps' centres.
+    origin = np.linalg.solve(np.stack([t0, t1, line]),
+                             np.array([t0 @ c0, t1 @ c1, line @ (c0 + c1) / 2.0]))
+    towards = surface.mean(axis=0) - origin
+    towards -= (towards @ line) * line
+    if np.linalg.norm(towards) < 1e-12:
+        return None
+    towards /= np.linalg.norm(towards)
+    pencil = PlanesThroughLine(origin, np.stack([line, towards, np.cross(line, towards)]))
+    local = pencil.to_local(surface)
+    size = float(np.linalg.norm(surface.max(axis=0) - surface.min(axis=0)))
+    if local[:, 2].min() < CLEARANCE * size or np.abs(local[:, 0]).max() >= MAX_SPAN:
+        return None
+    return pencil
+
+
+def slicing_families(primitive: SweepPrimitive, surface: np.ndarray
+                     ) -> Iterator[SlicingPlanes]:
+    """The families of planes to slice along: parallel planes across
+    slicing_directions, then the caps' pencil (caps_pencil). Tried first, the pencil
+    missed more of the folding primitives' cells (its slices lie far apart on the outer
+    side of a bend, and its first and last slices are a whole cap's inset from the ends);
+    last, it builds one that no direction does (BENCHMARKS.md, STEP export)."""
+    for direction in slicing_directions(primitive, surface):
+        yield ParallelPlanes(direction)
+    pencil = caps_pencil(primitive, surface)
+    if pencil is not None:
+        yield pencil
 
 
 def slicing_directions(primitive: SweepPrimitive, surface: np.ndarray) -> Iterator[np.ndarray]:
@@ -119,12 +217,13 @@ def _centres(occupied: np.ndarray, g1: np.ndarray, g2: np.ndarray) -> np.ndarray
     return centres
 
 
-def _inside(primitive: SweepPrimitive, rows: np.ndarray, local: np.ndarray) -> np.ndarray:
-    """The exact inside test at points local (..., 3) of the slicing frame -> bool (...)."""
-    return inside_union(local.reshape(-1, 3) @ rows, [primitive]).reshape(local.shape[:-1])
+def _inside(primitive: SweepPrimitive, planes: SlicingPlanes, local: np.ndarray) -> np.ndarray:
+    """The exact inside test at points of local coordinates (..., 3) -> bool (...)."""
+    world = planes.to_world(local.reshape(-1, 3))
+    return inside_union(world, [primitive]).reshape(local.shape[:-1])
 
 
-def _ray_radii(primitive: SweepPrimitive, rows: np.ndarray, s: np.ndarray,
+def _ray_radii(primitive: SweepPrimitive, planes: SlicingPlanes, s: np.ndarray,
                centres: np.ndarray, directions: np.ndarray, reach: float) -> np.ndarray | None:
     """Distance from each slice's centre (S, 2) to its boundary along unit directions
     (P, 2) -> (S, P); None where a ray leaves the region more than once (not star-shaped
@@ -139,7 +238,7 @@ def _ray_radii(primitive: SweepPrimitive, rows: np.ndarray, s: np.ndarray,
         return np.concatenate([along, across], axis=-1)
 
     steps = np.broadcast_to(np.linspace(0.0, reach, GRID), (S, P, GRID))
-    inside = _inside(primitive, rows, points(steps))
+    inside = _inside(primitive, planes, points(steps))
     leaves = np.argmin(inside, axis=2)  # the first sample outside
     later = np.arange(GRID) >= leaves[..., None]
     if not inside[:, :, 0].all() or (leaves == 0).any() or (inside & later).any():
@@ -147,25 +246,24 @@ def _ray_radii(primitive: SweepPrimitive, rows: np.ndarray, s: np.ndarray,
     lo, hi = steps[0, 0][leaves - 1], steps[0, 0][leaves]
     for _ in range(BISECTIONS):
         mid = 0.5 * (lo + hi)
-        hit = _inside(primitive, rows, points(mid))
+        hit = _inside(primitive, planes, points(mid))
         lo, hi = np.where(hit, mid, lo), np.where(hit, hi, mid)
     return 0.5 * (lo + hi)
 
 
-def slice_rings(primitive: SweepPrimitive, direction: np.ndarray,
+def slice_rings(primitive: SweepPrimitive, planes: SlicingPlanes,
                 surface: np.ndarray | None = None) -> SliceRings | None:
-    """The solid's boundary on SLICES planes across `direction` (3,), unit, as rings of
-    RAYS points; None if a slice is not one region, star-shaped about its centre.
-    `surface`: surface_samples(primitive), when already at hand."""
+    """The solid's boundary on SLICES planes of the family `planes`, as rings of RAYS
+    points; None if a slice is not one region, star-shaped about its centre. `surface`:
+    surface_samples(primitive), when already at hand."""
     if surface is None:
         surface = surface_samples(primitive)
-    rows = slicing_frame(direction)
-    local = surface @ rows.T
+    local = planes.to_local(surface)
     first, last = float(local[:, 0].min()), float(local[:, 0].max())
     u = INSET + (1.0 - 2.0 * INSET) * 0.5 * (1.0 - np.cos(np.linspace(0.0, np.pi, SLICES)))
     s = first + (last - first) * u
     lo, hi = _slice_windows(local, s)
-    # A coarse look first: most directions tried are rejected by it, at a quarter of the cost.
+    # A coarse look first: most families tried are rejected by it, at a quarter of the cost.
     for size in (GRID // 2, GRID):
         w = np.linspace(0.0, 1.0, size)
         g1 = lo[:, :1] + w * (hi[:, :1] - lo[:, :1])  # (S, size)
@@ -174,15 +272,15 @@ def slice_rings(primitive: SweepPrimitive, direction: np.ndarray,
         grid = np.stack([np.broadcast_to(s[:, None, None], shape),
                          np.broadcast_to(g1[:, :, None], shape),
                          np.broadcast_to(g2[:, None, :], shape)], axis=-1)
-        centres = _centres(_inside(primitive, rows, grid), g1, g2)
+        centres = _centres(_inside(primitive, planes, grid), g1, g2)
         if centres is None:
             return None
     angles = np.linspace(0.0, 2.0 * np.pi, RAYS, endpoint=False)
     directions = np.stack([np.cos(angles), np.sin(angles)], axis=-1)
     reach = float(np.hypot(*(local[:, 1:].max(axis=0) - local[:, 1:].min(axis=0))))
-    radii = _ray_radii(primitive, rows, s, centres, directions, reach)
+    radii = _ray_radii(primitive, planes, s, centres, directions, reach)
     if radii is None:
         return None
     across = centres[:, None, :] + radii[..., None] * directions[None]
     along = np.broadcast_to(s[:, None, None], (SLICES, RAYS, 1))
-    return SliceRings(u, np.concatenate([along, across], axis=-1) @ rows, angles)
+    return SliceRings(u, planes.to_world(np.concatenate([along, across], axis=-1)), angles)

@@ -19,10 +19,10 @@ before anything is written; a union is checked against a Monte Carlo estimate fr
 exact inside test. A sweep whose sections cross (it folds onto itself: its profile
 reaches past the axis' centre of curvature; or its axis comes back onto itself) would
 loft into a self-intersecting solid that OpenCascade's checker passes. It is built as a
-loft through parallel slices of the true solid instead (geometry/slices.py), written
-only when that is within 1% of a quasi-Monte Carlo estimate of its true volume, and
-otherwise refused with an error naming it (3 of the 122 folding primitives of the
-official files and the K = 8 fits of the 30 shapes).
+loft through slices of the true solid by planes that do not cross in it instead
+(geometry/slices.py), written only when that is within 1% of a quasi-Monte Carlo
+estimate of its true volume, and otherwise refused with an error naming it (2 of the 122
+folding primitives of the official files and the K = 8 fits of the 30 shapes).
 
 OpenCascade (the `cad` extra, package cadquery-ocp-novtk) is imported only when a STEP
 file is made, so the rest of sweepedit works without it.
@@ -50,7 +50,7 @@ from sweepedit.geometry.model import (
     SweepPrimitive,
     folds_onto_itself,
 )
-from sweepedit.geometry.slices import slice_rings, slicing_directions, surface_samples
+from sweepedit.geometry.slices import slice_rings, slicing_families, surface_samples
 from sweepedit.geometry.solid import profile_angles
 from sweepedit.geometry.sweep import (
     axis_frames,
@@ -91,6 +91,14 @@ UNION_SAMPLES = 300_000
 FOLD_REPLICATES = 8
 FOLD_LOG2_POINTS = 14
 FOLD_VOLUME_TOLERANCE = 0.01
+# Largest changes of a union's edge curves tried when they are re-approximated with
+# fewer poles (simplify_edge_curves), relative to the union's size.
+EDGE_CURVE_TOLERANCES = (1e-6, 1e-7)
+# A solid read back from the file written must have the volume checked in memory this
+# closely (relative). The file keeps the edges' curves on the faces (pcurves), 40 % of a
+# union's file: without them OpenCascade's reader rebuilt a face of 62.txt's union wrong,
+# valid but 1.8 % short.
+READ_BACK_TOLERANCE = 1e-6
 # Sewing tolerance, relative to the solid's size: neighbouring faces share their edge
 # curves exactly, so this only absorbs rounding.
 SEW_TOLERANCE = 1e-7
@@ -495,7 +503,7 @@ def _sections_union_solid(primitive: SweepPrimitive, normalization: Normalizatio
     """A primitive whose sections cross (it folds onto itself, or its axis comes back onto
     itself): its solid is the union of its sections, whose volume the closed form does not
     give, and a loft through the sections would overlap itself. It is lofted through
-    parallel slices of the true solid instead (_sliced_solid), and written only when that
+    slices of the true solid instead (_sliced_solid), and written only when that
     is within FOLD_VOLUME_TOLERANCE of a quasi-Monte Carlo estimate from the exact inside
     test (fold_volume) with two standard errors to spare: a tolerance widened by the
     estimate's own error let solids 1.1-1.6 % short through (BENCHMARKS.md, STEP export).
@@ -519,20 +527,20 @@ def _sections_union_solid(primitive: SweepPrimitive, normalization: Normalizatio
                    else ("comes back onto itself",
                          "move its control points apart where its axis comes back"))
     raise StepExportError(f"{what} {how} in a way STEP export cannot build as a correct "
-                          "solid (no loft through parallel slices of it is within 1% of "
+                          "solid (no loft through slices of it is within 1% of "
                           f"its volume); export a mesh, or {advice}")
 
 
 def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None,
                   what: str, volume: float, tolerance: float) -> Any | None:
-    """The loft through parallel slices of the exact solid (geometry/slices.py), along
-    the first direction across which every slice is one star-shaped region and whose
-    solid is valid and within `tolerance` of `volume`; None if there is none. Its
-    surfaces interpolate the true boundary, so the caps' rims and the fold's creases come
-    out rounded by about a slice's spacing."""
+    """The loft through slices of the exact solid (geometry/slices.py), by the first
+    family of planes that cuts every slice in one star-shaped region and whose solid is
+    valid and within `tolerance` of `volume`; None if there is none. Its surfaces
+    interpolate the true boundary, so the fold's creases come out rounded by about a
+    slice's spacing."""
     surface = surface_samples(primitive)
-    for direction in slicing_directions(primitive, surface):
-        sliced = slice_rings(primitive, direction, surface)
+    for planes in slicing_families(primitive, surface):
+        sliced = slice_rings(primitive, planes, surface)
         if sliced is None:
             continue
         t_knots, patches = _ring_patches(sliced.rings, sliced.u, sliced.angles)
@@ -541,7 +549,7 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
             _check_solid(solid, volume, tolerance, what,
                          "the quasi-Monte Carlo estimate of its sections' union")
         except StepExportError:
-            continue  # another direction may do
+            continue  # another family may do
         return solid
     return None
 
@@ -660,6 +668,41 @@ def fuse_solids(solids: Sequence[Any]) -> Any:
     return fuse.Shape()
 
 
+def simplify_edge_curves(shape: Any) -> Any:
+    """`shape` with its B-spline edge curves re-approximated with fewer poles (degree
+    <= 5, <= 32 spans) to the first of EDGE_CURVE_TOLERANCES of its size whose result is
+    valid, its surfaces untouched; the shape itself where none is. The fuse approximates
+    its intersection curves to 1e-7 with hundreds of poles each: half the points of a
+    union's STEP file (BENCHMARKS.md, STEP export)."""
+    from OCP.Bnd import Bnd_Box
+    from OCP.BRepBndLib import BRepBndLib
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.BRepLib import BRepLib
+    from OCP.BRepTools import BRepTools_Modifier
+    from OCP.collections import DataMap_TopoDS_Shape_TopoDS_Shape_TopTools_ShapeMapHasher
+    from OCP.GeomAbs import GeomAbs_C1
+    from OCP.ShapeCustom import ShapeCustom, ShapeCustom_BSplineRestriction
+
+    box = Bnd_Box()
+    BRepBndLib.Add_s(shape, box)
+    size = math.sqrt(box.SquareExtent())
+    for share in EDGE_CURVE_TOLERANCES:
+        tolerance = share * size
+        # Surfaces no, 3D curves and their pcurves yes; segments before degree; polynomial.
+        restriction = ShapeCustom_BSplineRestriction(
+            False, True, True, tolerance, tolerance, GeomAbs_C1, GeomAbs_C1, 5, 32, False,
+            True)
+        simplified = ShapeCustom.ApplyModifier_s(
+            shape, restriction, DataMap_TopoDS_Shape_TopoDS_Shape_TopTools_ShapeMapHasher(),
+            BRepTools_Modifier())
+        # The pcurves' parameters and the edges' tolerances follow the new curves.
+        BRepLib.SameParameter_s(simplified, 10.0 * tolerance, True)
+        BRepLib.UpdateTolerances_s(simplified, False)
+        if BRepCheck_Analyzer(simplified).IsValid():
+            return simplified
+    return shape
+
+
 def fuse_one_at_a_time(solids: Sequence[Any]) -> Any:
     """The boolean union of OpenCascade solids, fused one at a time, the largest first."""
     order = sorted(solids, key=solid_volume, reverse=True)
@@ -701,10 +744,10 @@ def _write_document(parts: Sequence[tuple[Any, str, str]], path: Path) -> None:
                                       f"STEP file written, not {len(parts)}; not written")
             volumes = [solid_volume(r.shape) for r in read]
             flipped = [i for i, (v, e) in enumerate(zip(volumes, expected, strict=True))
-                       if abs(v + e) <= 1e-6 * abs(e)]
+                       if abs(v + e) <= READ_BACK_TOLERANCE * abs(e)]
             wrong = [parts[i][1] for i, (v, e) in enumerate(zip(volumes, expected,
                                                                 strict=True))
-                     if i not in flipped and not abs(v - e) <= 1e-6 * abs(e)]
+                     if i not in flipped and not abs(v - e) <= READ_BACK_TOLERANCE * abs(e)]
             if wrong:
                 raise StepExportError(f"{path}: {', '.join(wrong)} read back from the STEP "
                                       "file with another volume than was checked; not "
@@ -795,6 +838,7 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
         tolerance = max(UNION_TOLERANCE, UNION_SIGMAS * error / estimate)
 
         def checked(fused: Any) -> Any:
+            fused = simplify_edge_curves(fused)
             _check_solid(fused, estimate * scale3, tolerance, "the union",
                          "the exact inside test's Monte Carlo estimate")
             return fused
