@@ -52,8 +52,7 @@ def test_slices_along_a_rod_are_its_rectangles() -> None:
     on_side = np.abs(np.abs(z) - half) < 1e-4 * 0.6
     on_cap = np.abs(np.abs(x) - 0.3) < 1e-4 * 0.6
     assert np.all(on_side | on_cap)
-    # within the bisection's precision (2^-12 / 47 of the width, 0.63 here) outside
-    assert np.all(np.abs(x) <= 0.3 + 1e-5) and np.all(np.abs(z) <= half + 1e-5)
+    assert np.all(np.abs(x) <= 0.3 + 1e-6) and np.all(np.abs(z) <= half + 1e-6)
 
 
 def test_a_slice_of_two_regions_is_refused() -> None:
