@@ -438,7 +438,32 @@ def test_a_unions_edge_curves_lose_poles_but_not_volume() -> None:
     before = poles(fused)
     volume = solid_volume(fused)
     simplified = simplify_edge_curves(fused)
-    assert BRepCheck_Analyzer(simplified).IsValid()
+    assert BRepCheck_Analyzer(simplified).IsValid()  # here; the export checks each union
     assert poles(simplified) < 0.85 * before
     assert solid_volume(simplified) == pytest.approx(volume, rel=1e-6)
     assert volume == pytest.approx(2 * math.pi * r * r * length - 16 * r**3 / 3, rel=1e-3)
+
+
+@needs_occ
+def test_a_union_whose_simplified_edges_fail_the_check_is_written_as_fused(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The re-approximated edge curves are checked like the fuse; here they are made to
+    # lose a solid, and the fuse's own union must be written instead.
+    from OCP.TopAbs import TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+
+    from sweepedit.io import step_export
+
+    def lossy(shape):
+        return TopExp_Explorer(shape, TopAbs_SOLID).Current()  # the first solid only
+
+    prims = [
+        SweepPrimitive([[-0.3, 0, 0], [0, 0.15, 0], [0.3, 0, 0]], a=0.08, b=0.05, degree=2.0),
+        SweepPrimitive([[0.25, -0.3, 0.2], [0.3, 0.0, 0.2], [0.25, 0.3, 0.2]], a=0.05,
+                       b=0.05, degree=2.0),
+    ]
+    monkeypatch.setattr(step_export, "simplify_edge_curves", lossy)
+    out = tmp_path / "union.step"
+    export_step(Abstraction(prims), out, union=True)
+    estimate, error = _monte_carlo(prims, 400_000)
+    assert solid_volume(_check(out)[0].shape) == pytest.approx(estimate, abs=4 * error)
