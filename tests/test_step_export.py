@@ -467,3 +467,33 @@ def test_a_union_whose_simplified_edges_fail_the_check_is_written_as_fused(
     export_step(Abstraction(prims), out, union=True)
     estimate, error = _monte_carlo(prims, 400_000)
     assert solid_volume(_check(out)[0].shape) == pytest.approx(estimate, abs=4 * error)
+
+
+@needs_occ
+def test_a_union_that_no_plain_fuse_gets_right_is_fused_with_a_tolerance(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Both plain fuses (all at once, one at a time) are made to drop all but the first
+    # solid, as OpenCascade's did on hand.txt; the fuzzy fuse that follows must be
+    # checked and written, and its union read back at the true volume.
+    from sweepedit.io import step_export
+
+    real = step_export.fuse_solids
+    fuzzy_values: list[float] = []
+
+    def lossy_unless_fuzzy(solids, fuzzy=0.0):
+        if fuzzy > 0.0:
+            fuzzy_values.append(fuzzy)
+            return real(solids, fuzzy)
+        return solids[0]
+
+    monkeypatch.setattr(step_export, "fuse_solids", lossy_unless_fuzzy)
+    prims = [
+        SweepPrimitive([[-0.3, 0, 0], [0, 0.15, 0], [0.3, 0, 0]], a=0.08, b=0.05, degree=2.0),
+        SweepPrimitive([[0, -0.2, -0.2], [0, 0.05, 0], [0.05, 0.2, 0.2]], a=0.06, b=0.06,
+                       degree=0.6),
+    ]
+    out = tmp_path / "union.step"
+    export_step(Abstraction(prims), out, union=True)
+    assert len(fuzzy_values) == 1 and 0.0 < fuzzy_values[0] < 1e-4
+    estimate, error = _monte_carlo(prims, 400_000)
+    assert solid_volume(_check(out)[0].shape) == pytest.approx(estimate, abs=4 * error)
