@@ -3,7 +3,8 @@
 A child process writes a large parameter file (sweepedit.io.params.write_abstraction, 2000
 primitives, ~1 MB) and a large mesh (sweepedit.io.mesh_export.write_mesh, 20k faces, binary
 PLY, ~1 MB) over and over, alternating between two known contents; it is killed with
-SIGKILL at random moments, many times. After every kill each file must be exactly one of
+SIGKILL many times: at random moments, and every other time while a temporary file is
+being synced (the moment the test is about, made certain, not left to timing). After every kill each file must be exactly one of
 its two known contents (the old complete file or the new one), and nothing but hidden
 temporary files of killed writers may be left beside them; the next write removes those.
 """
@@ -13,6 +14,7 @@ from __future__ import annotations
 import os
 import random
 import signal
+import stat
 import time
 from pathlib import Path
 
@@ -44,14 +46,18 @@ def _mesh(seed: int) -> TriangleMesh:
     return TriangleMesh(vertices, np.asarray(sphere.faces), np.asarray(sphere.vertex_normals))
 
 
-def _slow_disk() -> None:
+def _slow_disk(syncing: int | None = None) -> None:
     """From now on in this process, each fsync takes 40 ms more (a slow disk), so that a
     good share of the random kills land while a temporary file is open -- the moment the
-    test is about -- and not only in the serialisation before it."""
+    test is about -- and not only in the serialisation before it. With `syncing`, a byte
+    is written to that pipe as each regular file (a temporary file, before its rename)
+    has been synced."""
     fsync = os.fsync
 
     def slow_fsync(fd: int) -> None:
         fsync(fd)
+        if syncing is not None and stat.S_ISREG(os.fstat(fd).st_mode):
+            os.write(syncing, b"s")
         time.sleep(0.04)
 
     os.fsync = slow_fsync
@@ -60,8 +66,9 @@ def _slow_disk() -> None:
 def _write_forever(params: Path, mesh: Path, contents: list[tuple[Abstraction, TriangleMesh]],
                    first: int, started: int) -> None:
     """The child: say so on the pipe `started`, then write version `first`, then the
-    other, and so on until killed (it never returns)."""
-    _slow_disk()
+    other, and so on until killed (it never returns); a byte on `started` too whenever a
+    temporary file has been synced."""
+    _slow_disk(syncing=started)
     try:
         os.write(started, b"1")
         for i in range(10**9):
@@ -97,7 +104,7 @@ def test_files_survive_sigkill_whole(tmp_path: Path):
     seen = {params: set(), mesh: set()}
     killed_mid_write = 0
     on_disk = 1
-    for _ in range(KILLS):
+    for k in range(KILLS):
         started, ready = os.pipe()
         pid = os.fork()
         if pid == 0:  # the child starts with the version that is not on disk
@@ -105,10 +112,14 @@ def test_files_survive_sigkill_whole(tmp_path: Path):
         # The kill's moment counts from the child's first write, not from the fork,
         # which takes long in a big process (the whole suite's).
         os.read(started, 1)
+        if k % 2:  # while a temporary file is open: just after its sync, before its rename
+            os.read(started, 1)
+            time.sleep(rng.uniform(0.0, 0.02))
+        else:
+            time.sleep(rng.uniform(0.0, 1.5 * cycle))
+        os.kill(pid, signal.SIGKILL)
         os.close(started)
         os.close(ready)
-        time.sleep(rng.uniform(0.0, 1.5 * cycle))
-        os.kill(pid, signal.SIGKILL)
         os.waitpid(pid, 0)
         for path, versions in known.items():
             data = path.read_bytes()
@@ -118,9 +129,9 @@ def test_files_survive_sigkill_whole(tmp_path: Path):
         others = {p.name for p in tmp_path.iterdir()} - {params.name, mesh.name}
         assert all(name.startswith(".") and name.endswith(".tmp") for name in others), others
         killed_mid_write += bool(others)
-    # The kills landed in the middle of writes, and both versions were left at times:
-    # the test saw what it is about.
-    assert killed_mid_write >= 3, killed_mid_write
+    # Every other kill landed in the middle of a write (a temporary file left), and both
+    # versions were left at times: the test saw what it is about.
+    assert killed_mid_write >= KILLS // 2, killed_mid_write
     assert seen[params] == {0, 1} and seen[mesh] == {0, 1}
 
     # The next write of each file removes what killed writers left.
