@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -115,6 +116,49 @@ def test_one_named_coloured_solid_per_primitive(tmp_path: Path) -> None:
     for solid, prim in zip(solids, prims, strict=True):
         assert solid_volume(solid.shape) == pytest.approx(closed_form_volume(prim), rel=1e-3)
     assert report.size < 250_000 * len(prims)
+
+
+def _decimals(path: Path) -> list[int]:
+    """Digits after the point of each real number in a STEP file's data section."""
+    data = path.read_text().split("DATA;", 1)[1]
+    return [len(m) for m in re.findall(r"(?<![#\w])-?\d+\.(\d*)(?:E[-+]\d+)?", data)]
+
+
+@needs_occ
+def test_reals_are_written_with_8_decimals_at_the_same_volumes(tmp_path: Path) -> None:
+    from sweepedit.io import step_export
+
+    prims = _curved()
+    parts = [(step_export.primitive_solid(p, i, None), p.name, p.color)
+             for i, p in enumerate(prims)]
+    short, full = tmp_path / "short.step", tmp_path / "full.step"
+    step_export._write_step(parts, short, short, decimals=8)
+    step_export._write_step(parts, full, full, decimals=None)  # OpenCascade's 13 digits
+    assert max(_decimals(short)) == 8 and max(_decimals(full)) == 12
+    assert short.stat().st_size < 0.9 * full.stat().st_size
+    for a, b, prim in zip(_check(short), _check(full), prims, strict=True):
+        assert solid_volume(a.shape) == pytest.approx(solid_volume(b.shape), rel=1e-7)
+        assert solid_volume(a.shape) == pytest.approx(closed_form_volume(prim), rel=1e-3)
+    # What export_step writes is the short form.
+    out = tmp_path / "parts.step"
+    export_step(Abstraction(prims), out)
+    assert max(_decimals(out)) == 8
+
+
+@needs_occ
+def test_a_file_that_does_not_read_back_short_is_written_with_all_digits(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from sweepedit.io import step_export
+
+    # One decimal moves the points by up to 0.05: the read-back volume is wrong, and
+    # the file is written again as OpenCascade writes it.
+    monkeypatch.setattr(step_export, "STEP_DECIMALS", 1)
+    prim = _curved()[2]
+    out = tmp_path / "box.step"
+    export_step(Abstraction([prim]), out)
+    assert max(_decimals(out)) == 12
+    (solid,) = _check(out)
+    assert solid_volume(solid.shape) == pytest.approx(closed_form_volume(prim), rel=1e-3)
 
 
 @needs_occ

@@ -101,6 +101,13 @@ EDGE_CURVE_TOLERANCE = 1e-6
 # rebuilt wrong, -1.8 %, when the edges' curves on the faces were left out of the file),
 # while a union's re-approximated edge curves move the re-read volume by up to ~1e-6.
 READ_BACK_TOLERANCE = 1e-5
+# Decimals of the coordinates, knots and parameters written (|x| in [0.1, 1e7]; smaller
+# ones get 9 significant digits): within 5e-9, 20 times under OpenCascade's confusion
+# distance (1e-7). OpenCascade's writer prints 13 significant digits; 8 decimals make the
+# file 12-16 % smaller. Where a file so written does not read back as checked (knots
+# closer than that would merge), it is written again with OpenCascade's 13 digits.
+STEP_DECIMALS = 8
+STEP_DECIMALS_RANGE = (0.1, 1e7)
 # Sewing tolerance, relative to the solid's size: neighbouring faces share their edge
 # curves exactly, so this only absorbs rounding.
 SEW_TOLERANCE = 1e-7
@@ -724,51 +731,62 @@ def _color(hex_color: str) -> Any:
 
 def _write_document(parts: Sequence[tuple[Any, str, str]], path: Path) -> None:
     """Write shapes with names and colours [(shape, name, '#rrggbb')] as an AP214 STEP
-    file, atomically (written in a temporary folder first, then moved in whole).
-
-    The file is read back before it replaces `path`, and each solid's volume compared with
-    the one checked in memory: OpenCascade's writer turns a few sewn solids inside out
-    (the same volume, negated, on reading; seen on 1 of 378 primitives). Such a solid is
-    written reversed instead; anything else that differs is an error, not a file."""
-    from OCP.TopoDS import TopoDS
-
+    file, atomically (written in a temporary folder first, then moved in whole): with
+    STEP_DECIMALS decimals, or with OpenCascade's own 13 digits where that file does not
+    read back as checked (_read_back_checked)."""
     parts = list(parts)
-    expected = [solid_volume(shape) for shape, _, _ in parts]
     with tempfile.TemporaryDirectory(prefix="sweepedit-step-") as folder:
         tmp = Path(folder) / "export.step"
-        for _attempt in range(2):
-            _write_step(parts, tmp, path)
-            read = read_step(tmp)
-            if len(read) != len(parts):
-                raise StepExportError(f"{path}: {len(read)} solids read back from the "
-                                      f"STEP file written, not {len(parts)}; not written")
-            volumes = [solid_volume(r.shape) for r in read]
-            flipped = [i for i, (v, e) in enumerate(zip(volumes, expected, strict=True))
-                       if abs(v + e) <= READ_BACK_TOLERANCE * abs(e)]
-            wrong = [parts[i][1] for i, (v, e) in enumerate(zip(volumes, expected,
-                                                                strict=True))
-                     if i not in flipped and not abs(v - e) <= READ_BACK_TOLERANCE * abs(e)]
-            if wrong:
-                raise StepExportError(f"{path}: {', '.join(wrong)} read back from the STEP "
-                                      "file with another volume than was checked; not "
-                                      "written")
-            if not flipped:
-                break
-            for i in flipped:
-                shape, name, color = parts[i]
-                parts[i] = (TopoDS.Solid(shape.Reversed()), name, color)
-        else:
-            raise StepExportError(f"{path}: a solid reads back inside out from the STEP "
-                                  "file however it is written; not written")
-        data = tmp.read_bytes()
+        try:
+            data = _read_back_checked(parts, tmp, path, decimals=STEP_DECIMALS)
+        except StepExportError:
+            data = _read_back_checked(parts, tmp, path, decimals=None)
     atomic_write_bytes(path, data)
 
 
-def _write_step(parts: Sequence[tuple[Any, str, str]], tmp: Path, path: Path) -> None:
-    """Write [(shape, name, '#rrggbb')] as an AP214 STEP file at tmp (not atomic)."""
+def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
+                       decimals: int | None) -> bytes:
+    """The bytes of `parts` written as STEP (at tmp, by _write_step), read back and each
+    solid's volume compared with the one checked in memory. OpenCascade's writer turns a
+    few sewn solids inside out (the same volume, negated, on reading; seen on 1 of 378
+    primitives): such a solid is written reversed instead (in `parts`); anything else that
+    differs is an error, not a file."""
+    from OCP.TopoDS import TopoDS
+
+    expected = [solid_volume(shape) for shape, _, _ in parts]
+    for _attempt in range(2):
+        _write_step(parts, tmp, path, decimals)
+        read = read_step(tmp)
+        if len(read) != len(parts):
+            raise StepExportError(f"{path}: {len(read)} solids read back from the "
+                                  f"STEP file written, not {len(parts)}; not written")
+        volumes = [solid_volume(r.shape) for r in read]
+        flipped = [i for i, (v, e) in enumerate(zip(volumes, expected, strict=True))
+                   if abs(v + e) <= READ_BACK_TOLERANCE * abs(e)]
+        wrong = [parts[i][1] for i, (v, e) in enumerate(zip(volumes, expected, strict=True))
+                 if i not in flipped and not abs(v - e) <= READ_BACK_TOLERANCE * abs(e)]
+        if wrong:
+            raise StepExportError(f"{path}: {', '.join(wrong)} read back from the STEP "
+                                  "file with another volume than was checked; not written")
+        if not flipped:
+            return tmp.read_bytes()
+        for i in flipped:
+            shape, name, color = parts[i]
+            parts[i] = (TopoDS.Solid(shape.Reversed()), name, color)
+    raise StepExportError(f"{path}: a solid reads back inside out from the STEP file "
+                          "however it is written; not written")
+
+
+def _write_step(parts: Sequence[tuple[Any, str, str]], tmp: Path, path: Path,
+                decimals: int | None = None) -> None:
+    """Write [(shape, name, '#rrggbb')] as an AP214 STEP file at tmp (not atomic), its
+    real numbers with `decimals` decimals (STEP_DECIMALS_RANGE), or as OpenCascade writes
+    them (None)."""
     from OCP.IFSelect import IFSelect_RetDone
+    from OCP.StepAP214 import StepAP214_Protocol
     from OCP.STEPCAFControl import STEPCAFControl_Writer
     from OCP.STEPControl import STEPControl_AsIs
+    from OCP.StepData import StepData_StepWriter
     from OCP.TCollection import TCollection_ExtendedString
     from OCP.TDataStd import TDataStd_Name
     from OCP.TDocStd import TDocStd_Document
@@ -786,8 +804,18 @@ def _write_step(parts: Sequence[tuple[Any, str, str]], tmp: Path, path: Path) ->
     writer.SetColorMode(True)
     if not writer.Transfer(doc, STEPControl_AsIs):
         raise StepExportError(f"{path}: OpenCascade could not translate the solids to STEP")
-    if writer.Write(str(tmp)) != IFSelect_RetDone or not tmp.is_file():
-        raise StepExportError(f"{path}: OpenCascade could not write the STEP file")
+    if decimals is None:
+        if writer.Write(str(tmp)) != IFSelect_RetDone or not tmp.is_file():
+            raise StepExportError(f"{path}: OpenCascade could not write the STEP file")
+        return
+    # What STEPControl_Writer.Write does (StepSelect_WorkLibrary), with another format
+    # for the reals, which that writer fixes at 12 digits after the point.
+    lines = StepData_StepWriter(writer.ChangeWriter().Model())
+    lines.FloatWriter().SetDefaults(decimals)
+    lines.FloatWriter().SetFormatForRange(f"%.{decimals}f", *STEP_DECIMALS_RANGE)
+    lines.SendModel(StepAP214_Protocol())
+    text = "\n".join(lines.Line(i).ToCString() for i in range(1, lines.NbLines() + 1))
+    tmp.write_text(text + "\n", encoding="utf-8")
 
 
 @dataclass
