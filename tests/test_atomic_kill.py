@@ -4,9 +4,10 @@ A child process writes a large parameter file (sweepedit.io.params.write_abstrac
 primitives, ~1 MB) and a large mesh (sweepedit.io.mesh_export.write_mesh, 20k faces, binary
 PLY, ~1 MB) over and over, alternating between two known contents; it is killed with
 SIGKILL many times: at random moments, and every other time while a temporary file is
-being synced (the moment the test is about, made certain, not left to timing). After every kill each file must be exactly one of
-its two known contents (the old complete file or the new one), and nothing but hidden
-temporary files of killed writers may be left beside them; the next write removes those.
+being synced (the moment the test is about, made certain, not left to timing). After
+every kill each file must be exactly one of its two known contents (the old complete file
+or the new one), and nothing but hidden temporary files of killed writers may be left
+beside them; the next write removes those.
 """
 
 from __future__ import annotations

@@ -541,3 +541,90 @@ def test_a_union_that_no_plain_fuse_gets_right_is_fused_with_a_tolerance(
     assert len(fuzzy_values) == 1 and 0.0 < fuzzy_values[0] < 1e-4
     estimate, error = _monte_carlo(prims, 400_000)
     assert solid_volume(_check(out)[0].shape) == pytest.approx(estimate, abs=4 * error)
+
+
+@needs_occ
+def test_a_union_that_no_fuse_gets_right_is_fused_with_its_solids_nudged(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Every fuse of the solids as built is made to drop all but the first one, as
+    # OpenCascade's did on hammer.json; the last resort fuses copies moved by 1e-4 of the
+    # union's size, and that union must be checked, written and read back at the true
+    # volume, within that distance of the unmoved solids' box.
+    from OCP.Bnd import Bnd_Box
+    from OCP.BRepBndLib import BRepBndLib
+
+    from sweepedit.io import step_export
+
+    real = step_export.fuse_solids
+    built: list = []
+    real_solid = step_export.primitive_solid
+
+    def remembered(*args, **kwargs):
+        built.append(real_solid(*args, **kwargs))
+        return built[-1]
+
+    def lossy_unless_moved(solids, fuzzy=0.0):
+        if any(s is b for s in solids for b in built):
+            return solids[0]
+        return real(solids, fuzzy)
+
+    monkeypatch.setattr(step_export, "primitive_solid", remembered)
+    monkeypatch.setattr(step_export, "fuse_solids", lossy_unless_moved)
+    prims = [
+        SweepPrimitive([[-0.3, 0, 0], [0, 0.15, 0], [0.3, 0, 0]], a=0.08, b=0.05, degree=2.0),
+        SweepPrimitive([[0, -0.2, -0.2], [0, 0.05, 0], [0.05, 0.2, 0.2]], a=0.06, b=0.06,
+                       degree=0.6),
+    ]
+    out = tmp_path / "union.step"
+    stages: list[str] = []
+    export_step(Abstraction(prims), out, union=True, progress=lambda f, text: stages.append(text))
+    assert any("moved by 0.0001" in text for text in stages)
+    (union,) = _check(out)
+    estimate, error = _monte_carlo(prims, 400_000)
+    assert solid_volume(union.shape) == pytest.approx(estimate, abs=4 * error)
+
+    def box(shape) -> np.ndarray:
+        b = Bnd_Box()
+        BRepBndLib.AddOptimal_s(shape, b, False, False)
+        lo, hi = b.CornerMin(), b.CornerMax()
+        return np.array([lo.X(), lo.Y(), lo.Z(), hi.X(), hi.Y(), hi.Z()])
+
+    unmoved = real(built)
+    lo, hi = step_export._bounds(prims)
+    distance = step_export.NUDGE_SHARE * float(np.linalg.norm(hi - lo))
+    assert np.abs(box(union.shape) - box(unmoved)).max() <= distance + 1e-6
+
+
+@needs_occ
+def test_a_union_that_reads_back_invalid_is_not_written(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The first re-read solid is made invalid (its tolerances shrunk to 1e-15, its volume
+    # the same): that file is not taken, and the next one written reads back valid.
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.ShapeFix import ShapeFix_ShapeTolerance
+
+    from sweepedit.io import step_export
+
+    real = step_export.read_step
+    reads: list[int] = []
+
+    def damaged(path):
+        solids = real(path)
+        reads.append(1)
+        if len(reads) == 1:
+            ShapeFix_ShapeTolerance().SetTolerance(solids[0].shape, 1e-15)
+            assert not BRepCheck_Analyzer(solids[0].shape).IsValid()
+        return solids
+
+    prims = [
+        SweepPrimitive([[-0.3, 0, 0], [0, 0.15, 0], [0.3, 0, 0]], a=0.08, b=0.05, degree=2.0),
+        SweepPrimitive([[0, -0.2, -0.2], [0, 0.05, 0], [0.05, 0.2, 0.2]], a=0.06, b=0.06,
+                       degree=0.6),
+    ]
+    out = tmp_path / "union.step"
+    monkeypatch.setattr(step_export, "read_step", damaged)
+    export_step(Abstraction(prims), out, union=True)
+    assert len(reads) >= 2
+    estimate, error = _monte_carlo(prims, 400_000)
+    assert solid_volume(_check(out)[0].shape) == pytest.approx(estimate, abs=4 * error)
+
