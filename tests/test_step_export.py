@@ -452,7 +452,7 @@ def test_lofts_through_either_family_of_slices_keep_a_bends_volume() -> None:
 
 
 @needs_occ
-def test_a_unions_edge_curves_lose_poles_but_not_volume() -> None:
+def test_a_unions_edge_curves_lose_poles_but_not_volume(tmp_path: Path) -> None:
     # Two round rods of radius r and length L crossing at right angles through their
     # middles: the union's volume is 2 pi r^2 L - 16 r^3 / 3 (Steinmetz).
     from OCP.BRep import BRep_Tool
@@ -486,6 +486,12 @@ def test_a_unions_edge_curves_lose_poles_but_not_volume() -> None:
     assert poles(simplified) < 0.85 * before
     assert solid_volume(simplified) == pytest.approx(volume, rel=1e-6)
     assert volume == pytest.approx(2 * math.pi * r * r * length - 16 * r**3 / 3, rel=1e-3)
+    # The curves on the faces of the changed edges, projected anew, are in the file.
+    from sweepedit.io import step_export
+
+    out = tmp_path / "simplified.step"
+    step_export._write_step([(simplified, "union", "#808080")], out, out, decimals=8)
+    assert solid_volume(_check(out)[0].shape) == pytest.approx(volume, rel=1e-6)
 
 
 @needs_occ
