@@ -59,6 +59,16 @@ def _curved() -> list[SweepPrimitive]:
     ]
 
 
+def _crossing_pair() -> list[SweepPrimitive]:
+    """An arched elliptic rod and a diamond-section rod crossing it: a union with curved
+    intersection curves, for the union's fallbacks."""
+    return [
+        SweepPrimitive([[-0.3, 0, 0], [0, 0.15, 0], [0.3, 0, 0]], a=0.08, b=0.05, degree=2.0),
+        SweepPrimitive([[0, -0.2, -0.2], [0, 0.05, 0], [0.05, 0.2, 0.2]], a=0.06, b=0.06,
+                       degree=0.6),
+    ]
+
+
 def _check(path: Path) -> list:
     """Read a STEP file back; every shape must pass OpenCascade's checker."""
     from OCP.BRepCheck import BRepCheck_Analyzer
@@ -537,11 +547,7 @@ def test_a_union_that_no_plain_fuse_gets_right_is_fused_with_a_tolerance(
         return solids[0]
 
     monkeypatch.setattr(step_export, "fuse_solids", lossy_unless_fuzzy)
-    prims = [
-        SweepPrimitive([[-0.3, 0, 0], [0, 0.15, 0], [0.3, 0, 0]], a=0.08, b=0.05, degree=2.0),
-        SweepPrimitive([[0, -0.2, -0.2], [0, 0.05, 0], [0.05, 0.2, 0.2]], a=0.06, b=0.06,
-                       degree=0.6),
-    ]
+    prims = _crossing_pair()
     out = tmp_path / "union.step"
     export_step(Abstraction(prims), out, union=True)
     assert len(fuzzy_values) == 1 and 0.0 < fuzzy_values[0] < 1e-4
@@ -576,11 +582,7 @@ def test_a_union_that_no_fuse_gets_right_is_fused_with_its_solids_nudged(
 
     monkeypatch.setattr(step_export, "primitive_solid", remembered)
     monkeypatch.setattr(step_export, "fuse_solids", lossy_unless_moved)
-    prims = [
-        SweepPrimitive([[-0.3, 0, 0], [0, 0.15, 0], [0.3, 0, 0]], a=0.08, b=0.05, degree=2.0),
-        SweepPrimitive([[0, -0.2, -0.2], [0, 0.05, 0], [0.05, 0.2, 0.2]], a=0.06, b=0.06,
-                       degree=0.6),
-    ]
+    prims = _crossing_pair()
     out = tmp_path / "union.step"
     stages: list[str] = []
     export_step(Abstraction(prims), out, union=True, progress=lambda f, text: stages.append(text))
@@ -622,11 +624,7 @@ def test_a_union_that_reads_back_invalid_is_not_written(
             assert not BRepCheck_Analyzer(solids[0].shape).IsValid()
         return solids
 
-    prims = [
-        SweepPrimitive([[-0.3, 0, 0], [0, 0.15, 0], [0.3, 0, 0]], a=0.08, b=0.05, degree=2.0),
-        SweepPrimitive([[0, -0.2, -0.2], [0, 0.05, 0], [0.05, 0.2, 0.2]], a=0.06, b=0.06,
-                       degree=0.6),
-    ]
+    prims = _crossing_pair()
     out = tmp_path / "union.step"
     monkeypatch.setattr(step_export, "read_step", damaged)
     export_step(Abstraction(prims), out, union=True)
