@@ -603,8 +603,11 @@ def fold_volume(primitive: SweepPrimitive, replicates: int = FOLD_REPLICATES,
             float(shares.std(ddof=1)) / math.sqrt(replicates) * box)
 
 
+@lru_cache(maxsize=8)
 def solid_volume(shape: Any) -> float:
-    """The volume enclosed by an OpenCascade shape."""
+    """The volume enclosed by an OpenCascade shape. Remembered for the last few shape
+    objects (shapes are not changed in place here): a solid's check and the comparison
+    with its re-read copy ask for it twice, at 0.05-1.2 s each."""
     from OCP.BRepGProp import BRepGProp
     from OCP.GProp import GProp_GProps
 
