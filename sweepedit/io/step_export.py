@@ -21,8 +21,9 @@ reaches past the axis' centre of curvature; or its axis comes back onto itself) 
 loft into a self-intersecting solid that OpenCascade's checker passes. It is built as a
 loft through slices of the true solid by planes that do not cross in it instead
 (geometry/slices.py), written only when that is within 1% of a quasi-Monte Carlo
-estimate of its true volume, and otherwise refused with an error naming it (2 of the 122
-folding primitives of the official files and the K = 8 fits of the 30 shapes).
+estimate of its true volume, and otherwise refused with an error naming it (2 to 5 of
+the 122 to 127 folding primitives of the official files and two sets of K = 8 fits of the
+30 shapes; BENCHMARKS.md).
 
 OpenCascade (the `cad` extra, package cadquery-ocp-novtk) is imported only when a STEP
 file is made, so the rest of sweepedit works without it.
