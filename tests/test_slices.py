@@ -11,8 +11,12 @@ from sweepedit.geometry.slices import (
     INSET,
     RAYS,
     SLICES,
+    STUB_AXIS_SHARE,
+    STUB_LENGTH,
     ParallelPlanes,
     caps_pencil,
+    end_stubs,
+    rings_on_caps,
     slice_rings,
     slicing_frame,
     surface_samples,
@@ -88,3 +92,62 @@ def test_the_caps_pencil_turns_about_the_line_where_the_caps_planes_meet() -> No
     assert abs(angle[1, 0] - angle[0, 0]) == pytest.approx(np.pi / 2, abs=1e-9)
     # straight: the caps are parallel, there is no such line
     assert caps_pencil(ROD, surface_samples(ROD)) is None
+
+
+def test_end_stubs_go_on_straight_past_the_caps_of_a_rod() -> None:
+    # A rod of radius 0.1 along x from -0.3 to 0.3 whose scale grows as f = 1 + 0.5 t:
+    # past x = 0.3 its sections go on growing at df/dx = 0.5 / 0.6, past x = -0.3 they
+    # shrink at that rate.
+    rod = SweepPrimitive(ROD.control_points, a=0.1, b=0.1, degree=2.0, scaling=(0.5,))
+    stubs = end_stubs(rod, surface_samples(rod))
+    assert len(stubs) == 2
+    start, end = stubs
+    length = min(STUB_LENGTH * 0.1, STUB_AXIS_SHARE * 0.6)
+    assert np.allclose(start.centre, [-0.3, 0, 0]) and np.allclose(start.tangent, [-1, 0, 0])
+    assert np.allclose(end.centre, [0.3, 0, 0]) and np.allclose(end.tangent, [1, 0, 0])
+    assert start.length == pytest.approx(length) and end.length == pytest.approx(1.5 * length)
+    assert start.scale == pytest.approx(1.0) and end.scale == pytest.approx(1.5)
+    assert end.slope == pytest.approx(0.5 / 0.6, rel=1e-5)
+    assert start.slope == pytest.approx(-0.5 / 0.6, rel=1e-5)
+    # inside: within the grown circle and the stub's length, and nowhere behind the cap
+    z = 0.5 * end.length
+    radius = 0.1 * (1.5 + end.slope * z)
+    points = np.array([[0.3 + z, 0.99 * radius, 0.0], [0.3 + z, 0.0, 1.01 * radius],
+                       [0.3 + 1.01 * end.length, 0.0, 0.0], [0.29, 0.0, 0.0]])
+    assert end.inside(points).tolist() == [True, False, False, False]
+    # its side surface starts on the cap's rim and lies on the grown circles
+    ring = end.surface().reshape(-1, 128, 3)
+    assert np.allclose(ring[0, :, 0], 0.3)
+    assert np.allclose(np.hypot(ring[..., 1], ring[..., 2]),
+                       0.1 * (1.5 + end.slope * (ring[..., 0] - 0.3)))
+
+
+def test_no_stub_where_the_solid_itself_lies_past_a_cap() -> None:
+    # A hook: out along +x, up, and back along -x, its end cap facing its own first arm
+    # (which lies within reach past that cap); past the first cap there is nothing.
+    hook = SweepPrimitive([[0.0, 0.0, 0.0], [0.6, 0.0, 0.0], [0.6, 0.2, 0.0],
+                           [0.1, 0.2, 0.0]], a=0.12, b=0.12, degree=2.0)
+    stubs = end_stubs(hook, surface_samples(hook))
+    assert len(stubs) == 1
+    assert np.allclose(stubs[0].centre, 0.0) and np.allclose(stubs[0].tangent, [-1, 0, 0])
+
+
+def test_rings_moved_onto_the_caps_planes_end_on_the_rods_rims() -> None:
+    # Slanted planes cut the rod's caps obliquely; sliced with its stubs, the rings moved
+    # onto the caps' planes begin and end on the rims (x = -0.3 and 0.3, radius 0.1) and
+    # keep to the rod's surface in between.
+    stubs = end_stubs(ROD, surface_samples(ROD))
+    direction = np.array([1.0, 0.6, 0.0]) / np.hypot(1.0, 0.6)
+    sliced = slice_rings(ROD, ParallelPlanes(direction), stubs=stubs)
+    assert sliced is not None
+    capped = rings_on_caps(sliced, stubs)
+    assert capped is not None
+    assert capped.rings.shape == sliced.rings.shape
+    assert np.abs(capped.rings[0, :, 0] + 0.3).max() < 1e-12
+    assert np.abs(capped.rings[-1, :, 0] - 0.3).max() < 1e-12
+    radius = np.hypot(capped.rings[..., 1], capped.rings[..., 2])
+    assert np.abs(radius - 0.1).max() < 2e-3
+    assert np.abs(radius[[0, -1]] - 0.1).max() < 2e-3
+    # Planes along the rod cut both stubs in every slice: not cut back, refused.
+    along = slice_rings(ROD, ParallelPlanes(np.array([0.0, 1.0, 0.0])), stubs=stubs)
+    assert along is not None and rings_on_caps(along, stubs) is None

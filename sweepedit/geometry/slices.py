@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import ndimage
+from scipy.interpolate import make_interp_spline
 
 from sweepedit.geometry.inside import inside_union
 from sweepedit.geometry.model import SweepPrimitive
@@ -56,6 +57,8 @@ SURFACE_ANGLES = 128
 MIN_CAP_ANGLE = 0.05
 CLEARANCE = 0.02
 MAX_SPAN = 0.95 * np.pi
+# Samples along the loft per ray when its rings are moved onto the caps' planes (rings_on_caps).
+CAP_SEARCH = 2049
 # End stubs (EndStub): their length in the end section's smaller half-axis (f min(a, b)
 # at the cap) and at most a share of the axis' length (a long stub takes slices from the
 # solid), the least share of the cap's scale they taper to, and their surface samples.
@@ -160,8 +163,10 @@ class EndStub(NamedTuple):
     centre (3,) along the outward unit tangent (3,), scaled by scale + slope z. The slope
     is the sweep's own dF/ds there, so the side surface goes on tangent-continuously and
     a loft through slices of the sweep with its stubs crosses the cap's plane smoothly;
-    cutting the loft there (step_export) gives the flat cap and its sharp rim, which a
-    loft ending at the solid's extreme rounds off."""
+    its section by that plane (rings_on_caps) is then a flat cap with a sharp rim, which
+    a loft ending at the solid's extreme rounds off. (A stub rounded off at its own end
+    put the rod's rims 5x closer, but on 21 folding primitives of 8 files as many 64^3
+    cells wrong in all; BENCHMARKS.md, STEP export.)"""
 
     centre: np.ndarray
     tangent: np.ndarray
@@ -404,3 +409,58 @@ def ring_candidates(primitive: SweepPrimitive, planes: SlicingPlanes,
             across = centres[:, None, :] + radii[..., None] * directions[None]
             yield SliceRings(u, planes.to_world(np.concatenate([along, across], axis=-1)),
                              angles)
+
+
+def rings_on_caps(sliced: SliceRings, stubs: Sequence[EndStub]) -> SliceRings | None:
+    """The loft through `sliced` (rings of a solid with its end stubs) cut back at the
+    stubs' caps, as rings: per ray k, the loft's curve along the slices (the cubic
+    through rings[:, k], which is the loft's surface at that ray's angle) is cut where it
+    crosses each stub's cap plane, and SLICES new rings are spaced between the cuts as the
+    slices were. So the first (or last) ring is the loft's own section by the cap's
+    plane: its points lie in the plane, the loft's cap is flat, and its rim a sharp edge
+    on the loft's surface; nothing past the cap is kept. None where a ray's curve crosses
+    a cap's plane other than once, from the stub's side."""
+    u = sliced.u
+    S, P = sliced.rings.shape[:2]
+    rays = np.arange(P)
+    curves = make_interp_spline(u, sliced.rings, k=3, axis=0)  # (S, P, 3) along u
+    fine = np.linspace(u[0], u[-1], CAP_SEARCH)
+    points = curves(fine)  # (F, P, 3)
+    ends = {0: np.full(P, u[0]), -1: np.full(P, u[-1])}  # per ray, where the rings end
+    planes = {}
+    for stub in stubs:
+        beyond = (points - stub.centre) @ stub.tangent  # (F, P): > 0 on the stub's side
+        sign = beyond > 0.0
+        if not (np.count_nonzero(sign[1:] != sign[:-1], axis=0) == 1).all():
+            return None
+        end = 0 if sign[0].all() else -1 if sign[-1].all() else None
+        if end is None or end in planes:
+            return None
+        ends[end] = _crossing(curves, fine, beyond, stub)
+        planes[end] = stub
+    if not (ends[0] < ends[-1]).all():
+        return None
+    w = (u - u[0]) / (u[-1] - u[0])
+    along = ends[0] + w[:, None] * (ends[-1] - ends[0])  # (S, P)
+    rings = curves(along.ravel())[np.arange(S * P), np.tile(rays, S)].reshape(S, P, 3)
+    for end, stub in planes.items():  # onto the plane exactly, from within 1e-12 or so
+        gap = (rings[end] - stub.centre) @ stub.tangent
+        rings[end] -= gap[:, None] * stub.tangent
+    return SliceRings(u, rings, sliced.angles)
+
+
+def _crossing(curves: Any, fine: np.ndarray, beyond: np.ndarray, stub: EndStub) -> np.ndarray:
+    """Per ray, where its curve along the slices (curves, a spline over u of (P, 3))
+    crosses the stub's cap plane -> (P,); `beyond` (F, P): the distance past the plane at
+    the samples `fine` (F,), which change sign once per ray."""
+    P = beyond.shape[1]
+    i = np.argmax((beyond[1:] > 0.0) != (beyond[:-1] > 0.0), axis=0)  # the sample before
+    a, b = fine[i], fine[i + 1]
+    fa = beyond[i, np.arange(P)]
+    for _ in range(40):  # bisection on each ray's own curve
+        mid = 0.5 * (a + b)
+        fm = (curves(mid)[np.arange(P), np.arange(P)] - stub.centre) @ stub.tangent
+        same = (fm > 0.0) == (fa > 0.0)
+        a, fa = np.where(same, mid, a), np.where(same, fm, fa)
+        b = np.where(same, b, mid)
+    return 0.5 * (a + b)

@@ -52,9 +52,9 @@ from sweepedit.geometry.model import (
     folds_onto_itself,
 )
 from sweepedit.geometry.slices import (
-    EndStub,
     end_stubs,
     ring_candidates,
+    rings_on_caps,
     slicing_families,
     surface_samples,
 )
@@ -561,62 +561,30 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
     slice's spacing.
 
     The solid is sliced with its end stubs first (slices.end_stubs: straight
-    continuations past the caps), and the loft cut back at the caps' planes: a loft
-    that ends at the solid's extreme rounds the caps' rims off, which put about half of
-    the 64^3 cells that sliced solids got wrong at their ends. Without stubs where that
-    fails."""
+    continuations past the caps), and the loft's rings moved onto the caps' planes
+    (slices.rings_on_caps), so that its caps are flat and their rims sharp: a loft that
+    ends at the solid's extreme rounds the rims off, which put about half of the 64^3
+    cells that sliced solids got wrong at their ends. Without stubs where that fails."""
     surface = surface_samples(primitive)
     stubs = end_stubs(primitive, surface)
     extended = np.concatenate([surface, *(stub.surface() for stub in stubs)])
     for planes in slicing_families(primitive, surface):
         for ends, samples in ([(stubs, extended)] if stubs else []) + [([], surface)]:
             for sliced in ring_candidates(primitive, planes, samples, ends):
+                if ends:
+                    sliced = rings_on_caps(sliced, ends)
+                    if sliced is None:
+                        break
                 t_knots, patches = _ring_patches(sliced.rings, sliced.u, sliced.angles)
                 try:
                     solid = _sewn_solid(primitive, SideSurface(t_knots, patches),
                                         normalization, what)
-                    solid = _cut_stubs(solid, ends, normalization, what)
                     _check_solid(solid, volume, tolerance, what,
                                  "the quasi-Monte Carlo estimate of its sections' union")
                 except StepExportError:
                     continue  # other centres, no stubs or another family may do
                 return solid
     return None
-
-
-def _cut_stubs(solid: Any, stubs: Sequence[EndStub], normalization: Normalization | None,
-               what: str) -> Any:
-    """The solid with the box beyond each stub's cap cut away: the cap's square of side
-    2.4 reach, from its plane to twice the stub's length (end_stubs made sure that nothing
-    else of the primitive is there)."""
-    from OCP.BRepAlgoAPI import BRepAlgoAPI_Cut
-    from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox
-    from OCP.gp import gp_Ax2, gp_Dir, gp_Pnt
-    from OCP.TopAbs import TopAbs_SOLID
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    scale = 1.0 if normalization is None else normalization.scale
-    for stub in stubs:
-        half = 1.2 * stub.reach()
-        across = np.cross(stub.tangent, stub.u)  # the box's second side, as OCP makes it
-        corner = _transform_poles(stub.centre - half * (stub.u + across), normalization)
-        box = BRepPrimAPI_MakeBox(gp_Ax2(gp_Pnt(*map(float, corner)),
-                                         gp_Dir(*map(float, stub.tangent)),
-                                         gp_Dir(*map(float, stub.u))),
-                                  2.0 * half * scale, 2.0 * half * scale,
-                                  2.0 * stub.length * scale).Shape()
-        cut = BRepAlgoAPI_Cut(solid, box)
-        if not cut.IsDone():
-            raise StepExportError(f"{what}: cutting its loft at a cap failed")
-        explorer = TopExp_Explorer(cut.Shape(), TopAbs_SOLID)
-        if not explorer.More():
-            raise StepExportError(f"{what}: cutting its loft at a cap left nothing")
-        solid = TopoDS.Solid(explorer.Current())
-        explorer.Next()
-        if explorer.More():
-            raise StepExportError(f"{what}: cutting its loft at a cap split it")
-    return solid
 
 
 def fold_volume(primitive: SweepPrimitive, replicates: int = FOLD_REPLICATES,
