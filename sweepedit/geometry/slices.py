@@ -14,6 +14,11 @@ solid is single-region only across some. Then the half-planes about the line whe
 planes of the two caps meet (PlanesThroughLine): they meet only on that line, so they do
 not cross in a solid the line misses, and for a tube bent in an arc they are its
 cross-sections.
+
+A loft through slices that ends at the solid's extreme point rounds off the rims of
+caps that the planes cut obliquely. So the solid is sliced together with a short
+straight continuation past each cap (EndStub) where nothing else of it lies there, and
+the rings are then moved onto the caps' planes (rings_on_caps): flat caps, sharp rims.
 """
 
 from __future__ import annotations
