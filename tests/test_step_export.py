@@ -652,7 +652,9 @@ def test_a_union_that_no_fuse_gets_right_is_fused_with_its_solids_nudged(
 def test_a_union_that_reads_back_invalid_is_not_written(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # The first re-read solid is made invalid (its tolerances shrunk to 1e-15, its volume
-    # the same): that file is not taken, and the next one written reads back valid.
+    # the same): that file is not taken, and the next candidate written reads back valid.
+    # The rounding of 8 decimals is not what made it invalid, so the same union is not
+    # written again with all digits: the file has 8 decimals.
     from OCP.BRepCheck import BRepCheck_Analyzer
     from OCP.ShapeFix import ShapeFix_ShapeTolerance
 
@@ -674,6 +676,7 @@ def test_a_union_that_reads_back_invalid_is_not_written(
     monkeypatch.setattr(step_export, "read_step", damaged)
     export_step(Abstraction(prims), out, union=True)
     assert len(reads) >= 2
+    assert max(_decimals(out)) == 8
     estimate, error = _monte_carlo(prims, 400_000)
     assert solid_volume(_check(out)[0].shape) == pytest.approx(estimate, abs=4 * error)
 
