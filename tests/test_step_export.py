@@ -680,3 +680,36 @@ def test_a_union_that_reads_back_invalid_is_not_written(
     estimate, error = _monte_carlo(prims, 400_000)
     assert solid_volume(_check(out)[0].shape) == pytest.approx(estimate, abs=4 * error)
 
+
+
+@needs_occ
+def test_a_union_over_its_size_budget_leaves_the_curves_on_faces_out(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Within the budget a union's file has the edges' curves on their faces (PCURVE); over
+    # it (a budget of 1 byte here), it has none and still reads back valid at the Monte
+    # Carlo volume; and where such a file reads back wrong (its first solid read is
+    # dropped here), the file with the curves is written after all.
+    from sweepedit.io import step_export
+
+    prims = _crossing_pair()
+    estimate, error = _monte_carlo(prims, 400_000)
+    within, over, wrong = (tmp_path / f"{n}.step" for n in ("within", "over", "wrong"))
+    export_step(Abstraction(prims), within, union=True)
+    monkeypatch.setattr(step_export, "STEP_BYTES_PER_PRIMITIVE", 1)
+    export_step(Abstraction(prims), over, union=True)
+    assert "PCURVE" in within.read_text() and "PCURVE" not in over.read_text()
+    assert over.stat().st_size < 0.8 * within.stat().st_size
+    for path in (within, over):
+        assert solid_volume(_check(path)[0].shape) == pytest.approx(estimate, abs=4 * error)
+
+    real = step_export.read_step
+
+    def without_curves_read_wrong(path):
+        solids = real(path)
+        return solids if "PCURVE" in Path(path).read_text() else []
+
+    monkeypatch.setattr(step_export, "read_step", without_curves_read_wrong)
+    export_step(Abstraction(prims), wrong, union=True)
+    # the same data, but for the solid's name (the file's stem); no time stamp
+    data = lambda path: path.read_text().split("DATA;", 1)[1].replace(path.stem, "u")  # noqa: E731
+    assert data(wrong) == data(within)

@@ -120,6 +120,12 @@ READ_BACK_TOLERANCE = 1e-5
 # closer than that would merge), it is written again with OpenCascade's 13 digits.
 STEP_DECIMALS = 8
 STEP_DECIMALS_RANGE = (0.1, 1e7)
+# A file larger than this per primitive is written without the edges' curves on their
+# faces (pcurves: 2D B-splines that a reader can compute from the 3D curves and the
+# faces, 40 % of a large union's poles) where it reads back as checked that way; a
+# file within it keeps them. Unions of glyph_8.json, hand.txt, femur.json: 330 -> 193-207
+# kB per primitive (BENCHMARKS.md, STEP export).
+STEP_BYTES_PER_PRIMITIVE = 250_000
 # Sewing tolerance, relative to the solid's size: neighbouring faces share their edge
 # curves exactly, so this only absorbs rounding.
 SEW_TOLERANCE = 1e-7
@@ -795,22 +801,41 @@ def _color(hex_color: str) -> Any:
 
 
 def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
-                check_read_back: bool = False) -> bytes:
+                check_read_back: bool = False, budget: int | None = None) -> bytes:
     """Shapes with names and colours [(shape, name, '#rrggbb')] as the bytes of an AP214
     STEP file that reads back as checked (_read_back_checked), with STEP_DECIMALS
     decimals, or with OpenCascade's own 13 digits where that file reads back with other
     solids or volumes (the rounding could be why; an invalid solid of the right volume
-    reads back invalid at 13 digits too, and is not written again); `path` is the file
-    meant, for messages."""
+    reads back invalid at 13 digits too, and is not written again). A file over `budget`
+    bytes is written without the edges' curves on their faces where it reads back as
+    checked that way (_checked_bytes). `path` is the file meant, for messages."""
     parts = list(parts)
     with tempfile.TemporaryDirectory(prefix="sweepedit-step-") as folder:
         tmp = Path(folder) / "export.step"
-        try:
-            return _read_back_checked(parts, tmp, path, STEP_DECIMALS, check_read_back)
-        except _InvalidOnReadingError:
-            raise  # not the rounding: the same at 13 digits (bone.json's unions)
-        except StepExportError:
-            return _read_back_checked(parts, tmp, path, None, check_read_back)
+        if budget is not None:
+            # Writing is cheap (0.2 s for a union of 8), reading back and checking is not:
+            # the size is looked at first, and only one file is read back where it can.
+            _write_step(parts, tmp, path, STEP_DECIMALS)
+            if tmp.stat().st_size > budget:
+                try:
+                    return _checked_bytes(parts, tmp, path, check_read_back,
+                                          face_curves=False)
+                except StepExportError:
+                    pass  # read back otherwise than checked: the file with the curves
+        return _checked_bytes(parts, tmp, path, check_read_back, face_curves=True)
+
+
+def _checked_bytes(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
+                   check_read_back: bool, face_curves: bool) -> bytes:
+    """_read_back_checked with STEP_DECIMALS decimals, else with all digits (see
+    _step_bytes)."""
+    try:
+        return _read_back_checked(parts, tmp, path, STEP_DECIMALS, check_read_back,
+                                  face_curves)
+    except _InvalidOnReadingError:
+        raise  # not the rounding: the same at 13 digits (bone.json's unions)
+    except StepExportError:
+        return _read_back_checked(parts, tmp, path, None, check_read_back, face_curves)
 
 
 class _InvalidOnReadingError(StepExportError):
@@ -818,7 +843,8 @@ class _InvalidOnReadingError(StepExportError):
 
 
 def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
-                       decimals: int | None, check_validity: bool = False) -> bytes:
+                       decimals: int | None, check_validity: bool = False,
+                       face_curves: bool = True) -> bytes:
     """The bytes of `parts` written as STEP (at tmp, by _write_step), read back and each
     solid's volume compared with the one checked in memory (and with `check_validity`,
     each solid checked by OpenCascade's checker). OpenCascade's writer turns a few sewn
@@ -830,7 +856,7 @@ def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
 
     expected = [solid_volume(shape) for shape, _, _ in parts]
     for _attempt in range(2):
-        _write_step(parts, tmp, path, decimals)
+        _write_step(parts, tmp, path, decimals, face_curves)
         read = read_step(tmp)
         if len(read) != len(parts):
             raise StepExportError(f"{path}: {len(read)} solids read back from the "
@@ -858,11 +884,13 @@ def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
 
 
 def _write_step(parts: Sequence[tuple[Any, str, str]], tmp: Path, path: Path,
-                decimals: int | None = None) -> None:
+                decimals: int | None = None, face_curves: bool = True) -> None:
     """Write [(shape, name, '#rrggbb')] as an AP214 STEP file at tmp (not atomic), its
     real numbers with `decimals` decimals (STEP_DECIMALS_RANGE), or as OpenCascade writes
-    them (None)."""
+    them (None); without `face_curves`, the edges' curves on their faces (pcurves) are
+    left out, and a reader computes them from the edges' 3D curves and the faces."""
     from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
     from OCP.StepAP214 import StepAP214_Protocol
     from OCP.STEPCAFControl import STEPCAFControl_Writer
     from OCP.STEPControl import STEPControl_AsIs
@@ -882,7 +910,13 @@ def _write_step(parts: Sequence[tuple[Any, str, str]], tmp: Path, path: Path,
     writer = STEPCAFControl_Writer()
     writer.SetNameMode(True)
     writer.SetColorMode(True)
-    if not writer.Transfer(doc, STEPControl_AsIs):
+    # A process-wide setting that the translation reads: set for this file, then reset.
+    Interface_Static.SetIVal_s("write.surfacecurve.mode", int(face_curves))
+    try:
+        translated = writer.Transfer(doc, STEPControl_AsIs)
+    finally:
+        Interface_Static.SetIVal_s("write.surfacecurve.mode", 1)
+    if not translated:
         raise StepExportError(f"{path}: OpenCascade could not translate the solids to STEP")
     if decimals is None:
         if writer.Write(str(tmp)) != IFSelect_RetDone or not tmp.is_file():
@@ -950,7 +984,8 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
             # A union read back is checked by OpenCascade's checker too: one fused with
             # its solids nudged came back invalid from a file once (bone.json).
             return _step_bytes([(union, path.stem, primitives[0].color)], path,
-                               check_read_back=True)
+                               check_read_back=True,
+                               budget=STEP_BYTES_PER_PRIMITIVE * len(primitives))
 
         def checked(fused: Any) -> bytes:
             try:
@@ -987,7 +1022,7 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
         parts = [(s, p.name or f"primitive {i}", p.color)
                  for s, (i, p) in zip(solids, chosen, strict=True)]
         step(len(chosen), f"writing {path.name}")
-        data = _step_bytes(parts, path)
+        data = _step_bytes(parts, path)  # each solid alone is well within the budget
         solids_written = len(parts)
     atomic_write_bytes(path, data)
     report(1.0, f"wrote {path.name}")
