@@ -31,11 +31,13 @@ import numpy as np
 from scipy import ndimage
 from scipy.interpolate import make_interp_spline
 
+from sweepedit.geometry.axis_edit import axis_length
 from sweepedit.geometry.inside import inside_union
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import (
     axis_frames,
     axis_points_tangents,
+    axis_speed,
     scaling_factor,
     superellipse,
     superellipse_level,
@@ -188,26 +190,31 @@ class EndStub(NamedTuple):
         q = points - self.centre
         return np.stack([q @ self.u, q @ self.v, q @ self.tangent], axis=-1)
 
+    def scale_at(self, z: np.ndarray | float) -> np.ndarray:
+        """The profile's scale at distances z (...) past the cap, held at the stub's ends
+        outside [0, length]."""
+        return self.scale + self.slope * np.clip(z, 0.0, self.length)
+
     def inside(self, points: np.ndarray) -> np.ndarray:
         """Whether points (..., 3) lie in the stub -> bool (...)."""
         x, y, z = np.moveaxis(self.local(points), -1, 0)
-        scale = self.scale + self.slope * np.clip(z, 0.0, self.length)
+        scale = self.scale_at(z)
         level = superellipse_level((x / scale)[None], (y / scale)[None], self.profile[None])[0]
         return (z >= 0.0) & (z <= self.length) & (level <= 1.0)
 
     def reach(self) -> float:
         """Half the side of a square about the axis that holds every section."""
-        return max(self.scale, self.scale + self.slope * self.length) * float(
-            max(self.profile[0], self.profile[1]))
+        return float(max(self.scale_at(0.0), self.scale_at(self.length))
+                     * max(self.profile[0], self.profile[1]))
 
     def surface(self) -> np.ndarray:
         """Points of its side surface, (STUB_STATIONS * SURFACE_ANGLES, 3)."""
         z = np.linspace(0.0, self.length, STUB_STATIONS)
         theta = np.linspace(0.0, 2.0 * np.pi, SURFACE_ANGLES, endpoint=False)
         x, y = (c[0] for c in superellipse(theta, self.profile[None]))
-        scale = (self.scale + self.slope * z)[:, None, None]
         ring = x[:, None] * self.u + y[:, None] * self.v  # (P, 3)
-        return (self.centre + z[:, None, None] * self.tangent + scale * ring).reshape(-1, 3)
+        return (self.centre + z[:, None, None] * self.tangent
+                + self.scale_at(z)[:, None, None] * ring).reshape(-1, 3)
 
 
 def end_stubs(primitive: SweepPrimitive, surface: np.ndarray) -> list[EndStub]:
@@ -219,18 +226,14 @@ def end_stubs(primitive: SweepPrimitive, surface: np.ndarray) -> list[EndStub]:
     ends = np.array([0.0, 1.0])
     frames = axis_frames(cps, ends)
     f = scaling_factor(scaling, ends)[0]
-    df = np.array([sum(i * c * e ** (i - 1) for i, c in enumerate(scaling[0], start=1))
-                   for e in ends])
-    h = 1e-6  # |s'| at the ends, by a difference inside the axis
-    inward = axis_points_tangents(cps, np.array([h, 1.0 - h]))[0][0]
-    speed = np.linalg.norm(inward - frames.points[0], axis=1) / h
+    poly = np.polynomial.polynomial
+    df = poly.polyval(ends, poly.polyder(np.concatenate([[1.0], scaling[0]])))  # f'(t)
+    speed = axis_speed(cps, ends)[0]
     size = float(np.linalg.norm(surface.max(axis=0) - surface.min(axis=0)))
-    axis = axis_points_tangents(cps, np.linspace(0.0, 1.0, 129))[0][0]
-    axis_length = float(np.linalg.norm(np.diff(axis, axis=0), axis=1).sum())
+    longest = STUB_AXIS_SHARE * axis_length(primitive.control_points)
     stubs = []
     for k, sign in ((0, -1.0), (1, 1.0)):
-        length = min(STUB_LENGTH * f[k] * float(min(primitive.a, primitive.b)),
-                     STUB_AXIS_SHARE * axis_length)
+        length = min(STUB_LENGTH * f[k] * float(min(primitive.a, primitive.b)), longest)
         slope = max(sign * df[k] / speed[k], -(1.0 - STUB_MIN_SCALE) * f[k] / length)
         stub = EndStub(frames.points[0, k], sign * frames.T[0, k], frames.U[0, k],
                        frames.V[0, k], float(f[k]), float(slope), length,
@@ -426,8 +429,7 @@ def rings_on_caps(sliced: SliceRings, stubs: Sequence[EndStub]) -> SliceRings | 
     on the loft's surface; nothing past the cap is kept. None where a ray's curve crosses
     a cap's plane other than once, from the stub's side."""
     u = sliced.u
-    S, P = sliced.rings.shape[:2]
-    rays = np.arange(P)
+    P = sliced.rings.shape[1]
     curves = make_interp_spline(u, sliced.rings, k=3, axis=0)  # (S, P, 3) along u
     fine = np.linspace(u[0], u[-1], CAP_SEARCH)
     points = curves(fine)  # (F, P, 3)
@@ -447,7 +449,7 @@ def rings_on_caps(sliced: SliceRings, stubs: Sequence[EndStub]) -> SliceRings | 
         return None
     w = (u - u[0]) / (u[-1] - u[0])
     along = ends[0] + w[:, None] * (ends[-1] - ends[0])  # (S, P)
-    rings = curves(along.ravel())[np.arange(S * P), np.tile(rays, S)].reshape(S, P, 3)
+    rings = np.stack([_on_rays(curves, row) for row in along])  # (S, P, 3)
     for end, stub in planes.items():  # onto the plane exactly, from within 1e-12 or so
         gap = (rings[end] - stub.centre) @ stub.tangent
         rings[end] -= gap[:, None] * stub.tangent
@@ -464,8 +466,15 @@ def _crossing(curves: Any, fine: np.ndarray, beyond: np.ndarray, stub: EndStub) 
     fa = beyond[i, np.arange(P)]
     for _ in range(40):  # bisection on each ray's own curve
         mid = 0.5 * (a + b)
-        fm = (curves(mid)[np.arange(P), np.arange(P)] - stub.centre) @ stub.tangent
+        fm = (_on_rays(curves, mid) - stub.centre) @ stub.tangent
         same = (fm > 0.0) == (fa > 0.0)
         a, fa = np.where(same, mid, a), np.where(same, fm, fa)
         b = np.where(same, b, mid)
     return 0.5 * (a + b)
+
+
+def _on_rays(curves: Any, u: np.ndarray) -> np.ndarray:
+    """Each ray's point at its own parameter: curves a spline over u of (P, 3), u (P,)
+    -> (P, 3), ray k's curve at u[k]."""
+    rays = np.arange(len(u))
+    return curves(u)[rays, rays]

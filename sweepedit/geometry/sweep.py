@@ -288,6 +288,13 @@ def _axis_derivatives(xp: Any, control_points: Any, t: Any) -> tuple[Any, Any]:
     return d1, d2
 
 
+def axis_speed(control_points: Any, t: Any) -> Any:
+    """|s'(t)| of the axes: control_points (K, n, 3), t (M,) -> (K, M)."""
+    xp = array_namespace(control_points, t)
+    d1, _ = _axis_derivatives(xp, control_points, t)
+    return xp.sqrt(_dot(xp, d1, d1))[..., 0]
+
+
 def axis_curvature(control_points: Any, t: Any) -> Any:
     """Curvature |s' x s''| / |s'|^3 of the axes: control_points (K, n, 3), t (M,) -> (K, M).
 

@@ -872,8 +872,8 @@ def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
         invalid = [parts[i][1] for i, r in enumerate(read)
                    if check_validity and not BRepCheck_Analyzer(r.shape).IsValid()]
         if invalid:
-            raise _InvalidOnReadingError(f"{path}: {', '.join(invalid)} read back from the STEP "
-                                    "file as an invalid solid; not written")
+            raise _InvalidOnReadingError(f"{path}: {', '.join(invalid)} read back from "
+                                         "the STEP file as an invalid solid; not written")
         if not flipped:
             return tmp.read_bytes()
         for i in flipped:
