@@ -8,12 +8,17 @@ import pytest
 
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.slices import (
+    GRID,
     INSET,
     RAYS,
     SLICES,
     STUB_AXIS_SHARE,
     STUB_LENGTH,
     ParallelPlanes,
+    _brackets,
+    _grid_brackets,
+    _ray_radii,
+    _refined,
     caps_pencil,
     end_stubs,
     rings_on_caps,
@@ -151,3 +156,48 @@ def test_rings_moved_onto_the_caps_planes_end_on_the_rods_rims() -> None:
     # Planes along the rod cut both stubs in every slice: not cut back, refused.
     along = slice_rings(ROD, ParallelPlanes(np.array([0.0, 1.0, 0.0])), stubs=stubs)
     assert along is not None and rings_on_caps(along, stubs) is None
+
+
+def _disk_slices(radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Three slices across the rod (x = -0.2, 0, 0.2), each a window [-0.15, 0.15]^2 of
+    GRID lines, and the occupancy of a disk of `radius` about the axis at its nodes
+    -> s (3,), g1, g2 (3, GRID), occupied (3, GRID, GRID)."""
+    s = np.array([-0.2, 0.0, 0.2])
+    lines = np.broadcast_to(np.linspace(-0.15, 0.15, GRID), (3, GRID))
+    occupied = np.broadcast_to(np.hypot(lines[0][:, None], lines[0][None, :]) <= radius,
+                               (3, GRID, GRID))
+    return s, lines, lines, occupied
+
+
+def test_the_grid_refined_from_every_other_line_is_the_exact_one() -> None:
+    # Nodes off the coarse grid are taken from their cell's corners where those agree,
+    # and left open (to be tested exactly) only near the boundary.
+    _, g1, g2, exact = _disk_slices(0.1)
+    occupied, open_ = _refined(exact[:, ::2, ::2])
+    assert np.array_equal(occupied[~open_], exact[~open_])
+    assert np.array_equal(occupied[:, ::2, ::2], exact[:, ::2, ::2])
+    assert not open_[:, ::2, ::2].any()
+    assert 0 < open_.sum() < 0.3 * open_.size
+    # Every node the boundary passes between is open or on the coarse grid.
+    near = np.abs(np.hypot(g1[0][:, None], g2[0][None, :]) - 0.1) < 0.5 * (g1[0, 1] - g1[0, 0])
+    assert (open_[0] | (np.add.outer(np.arange(GRID) % 2, np.arange(GRID) % 2) == 0))[near].all()
+
+
+def test_ray_radii_from_the_grid_and_from_the_exact_march_where_the_grid_misleads() -> None:
+    angles = np.linspace(0.0, 2.0 * np.pi, RAYS, endpoint=False)
+    directions = np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+    planes = ParallelPlanes(np.array([1.0, 0.0, 0.0]))
+    centres = np.zeros((3, 2))
+    for grid_radius in (0.1, 0.06):  # the rod's own disk; one a cell-width too small
+        s, g1, g2, occupied = _disk_slices(grid_radius)
+        lo, hi, ok = _grid_brackets((occupied, g1, g2), centres, directions)
+        assert ok.all() and (lo < hi).all()
+        bracket = _brackets(ROD, planes, s, centres, directions, (occupied, g1, g2), 0.3)
+        assert bracket is not None
+        assert (bracket[0] < 0.1).all() and (bracket[1] > 0.1).all()
+        radii = _ray_radii(ROD, planes, s, centres, directions, bracket)
+        assert np.abs(radii - 0.1).max() < 1e-6
+    # An annulus is not star-shaped about its centre, on the grid or exactly.
+    s, g1, g2, occupied = _disk_slices(0.1)
+    ring = occupied & ~_disk_slices(0.04)[3]
+    assert not _grid_brackets((ring, g1, g2), centres + 0.07, directions)[2].all()

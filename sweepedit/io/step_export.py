@@ -84,8 +84,11 @@ PROFILE_NODES = (8, 10, 12, 16, 20, 24, 32, 40, 48, 64)
 AXIS_TOLERANCE = 1.5e-3
 MIN_SEGMENT_STATIONS = 5
 MAX_SEGMENT_STATIONS = 257
-# Relative precision of OpenCascade's adaptive volume integration.
-VOLUME_PRECISION = 1e-6
+# Relative precision asked of OpenCascade's adaptive volume integration. Its results
+# come within ~1e-5 of a 1e-9 integration on folding solids (1e-6 on the others), far
+# inside every check's tolerance, at a fifth to a half of 1e-6's time (a folding
+# primitive's solid: 17-26 ms, against 30-127 ms; BENCHMARKS.md, STEP export).
+VOLUME_PRECISION = 1e-4
 # A solid's volume must match the closed form this closely (relative).
 VOLUME_TOLERANCE = 1e-3
 # The union's volume must match the Monte Carlo estimate this closely (relative), or by
@@ -111,8 +114,9 @@ EDGE_CURVE_TOLERANCE = 1e-6
 # A solid read back from the file written must have the volume checked in memory this
 # closely (relative): what it catches is gross (a solid inside out, -100 %; a face
 # rebuilt wrong, -1.8 %, when the edges' curves on the faces were left out of the file),
-# while a union's re-approximated edge curves move the re-read volume by up to ~1e-6.
-READ_BACK_TOLERANCE = 1e-5
+# while a union's re-approximated edge curves move the re-read volume by up to ~1e-6,
+# and two integrations at VOLUME_PRECISION differ by up to ~2e-5.
+READ_BACK_TOLERANCE = 1e-4
 # Decimals of the coordinates, knots and parameters written (|x| in [0.1, 1e7]; smaller
 # ones get 9 significant digits): within 5e-9, 20 times under OpenCascade's confusion
 # distance (1e-7). OpenCascade's writer prints 13 significant digits; 8 decimals make the
@@ -629,16 +633,17 @@ def fold_volume(primitive: SweepPrimitive, replicates: int = FOLD_REPLICATES,
 
 
 @lru_cache(maxsize=8)
-def solid_volume(shape: Any) -> float:
-    """The volume enclosed by an OpenCascade shape. Remembered for the last few shape
-    objects (shapes are not changed in place here): a solid's check and the comparison
-    with its re-read copy ask for it twice, at 0.05-1.2 s each."""
+def solid_volume(shape: Any, precision: float = VOLUME_PRECISION) -> float:
+    """The volume enclosed by an OpenCascade shape, integrated to the relative
+    `precision`. Remembered for the last few shape objects (shapes are not changed in
+    place here): a solid's check and the comparison with its re-read copy ask for it
+    twice, at 0.02-1 s each."""
     from OCP.BRepGProp import BRepGProp
     from OCP.GProp import GProp_GProps
 
     props = GProp_GProps()
     # The adaptive integration: the default fixed-order one is off by 0.1% on these faces.
-    BRepGProp.VolumeProperties_s(shape, props, VOLUME_PRECISION)
+    BRepGProp.VolumeProperties_s(shape, props, precision)
     return float(props.Mass())
 
 
