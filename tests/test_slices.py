@@ -16,7 +16,10 @@ from sweepedit.geometry.slices import (
     STUB_LENGTH,
     ParallelPlanes,
     _brackets,
+    _centroids,
+    _deepest,
     _grid_brackets,
+    _one_region_each,
     _ray_radii,
     _refined,
     caps_pencil,
@@ -201,3 +204,19 @@ def test_ray_radii_from_the_grid_and_from_the_exact_march_where_the_grid_mislead
     s, g1, g2, occupied = _disk_slices(0.1)
     ring = occupied & ~_disk_slices(0.04)[3]
     assert not _grid_brackets((ring, g1, g2), centres + 0.07, directions)[2].all()
+
+
+def test_one_region_each_centroids_and_deepest_points_of_known_slices() -> None:
+    _, g1, g2, disk = _disk_slices(0.1)
+    assert _one_region_each(disk)
+    two = disk.copy()
+    two[1, :, GRID // 2] = False  # the middle slice cut in two
+    assert not _one_region_each(two)
+    holed = disk & ~_disk_slices(0.03)[3]
+    assert not _one_region_each(holed)
+    # A disk off the axis: its centroid and deepest node are its centre.
+    shifted = np.hypot(g1[0][:, None] - 0.05, g2[0][None, :] + 0.02) <= 0.08
+    occupied = np.broadcast_to(shifted, (3, GRID, GRID))
+    assert np.abs(_centroids(occupied, g1, g2) - [0.05, -0.02]).max() < 1e-3
+    cell = g1[0, 1] - g1[0, 0]
+    assert np.abs(_deepest(occupied, g1, g2) - [0.05, -0.02]).max() <= cell
