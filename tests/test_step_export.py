@@ -713,3 +713,54 @@ def test_a_union_over_its_size_budget_leaves_the_curves_on_faces_out(
     # the same data, but for the solid's name (the file's stem); no time stamp
     data = lambda path: path.read_text().split("DATA;", 1)[1].replace(path.stem, "u")  # noqa: E731
     assert data(wrong) == data(within)
+
+
+@needs_occ
+def test_a_union_that_no_fuse_gets_right_is_fused_with_a_folding_primitive_sliced_another_way(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Every fuse, however tried, drops material while the hairpin's first sliced solid
+    # is in it, as OpenCascade's did with hand.txt's 1st primitive against its 7th; the
+    # hairpin sliced another way (the next solid of it that passes its checks) must then
+    # be fused, checked and written at the true volume.
+    from sweepedit.io import step_export
+
+    real_fuse, real_solid = step_export.fuse_solids, step_export.primitive_solid
+    first: list = []
+
+    def remembered(primitive, index=0, normalization=None, alternative=0):
+        solid = real_solid(primitive, index, normalization, alternative)
+        if primitive.name == "hairpin" and alternative == 0:
+            first.append(solid)
+        return solid
+
+    def lossy_with_the_first(solids, fuzzy=0.0):
+        if any(s is f for s in solids for f in first):
+            return solids[0]  # the others dropped
+        return real_fuse(solids, fuzzy)
+
+    monkeypatch.setattr(step_export, "primitive_solid", remembered)
+    monkeypatch.setattr(step_export, "fuse_solids", lossy_with_the_first)
+    monkeypatch.setattr(step_export, "nudged", lambda solids, distance, seed=0: list(solids))
+    hairpin = next(p for p in CROSSING if p.name == "hairpin")
+    rod = SweepPrimitive([[-0.2, 0.05, 0.0], [0.0, 0.05, 0.0], [0.2, 0.05, 0.0]], a=0.04,
+                         b=0.04, degree=2.0, name="rod")
+    prims = [rod, hairpin]
+    out = tmp_path / "union.step"
+    stages: list[str] = []
+    export_step(Abstraction(prims), out, union=True, progress=lambda f, text: stages.append(text))
+    assert "building primitive 'hairpin' another way" in stages
+    (union,) = _check(out)
+    estimate, error = _monte_carlo(prims, 400_000)
+    assert solid_volume(union.shape) == pytest.approx(estimate, abs=max(4 * error,
+                                                                         0.01 * estimate))
+    # Where no other solid passes, the first failure is the error, and nothing is written.
+    def first_only(primitive, index=0, normalization=None, alternative=0):
+        if alternative:
+            raise StepExportError("no other solid")
+        return remembered(primitive, index, normalization)
+
+    monkeypatch.setattr(step_export, "primitive_solid", first_only)
+    refused = tmp_path / "refused.step"
+    with pytest.raises(StepExportError, match="the union"):
+        export_step(Abstraction(prims), refused, union=True)
+    assert not refused.exists()
