@@ -402,7 +402,9 @@ def _brackets(primitive: SweepPrimitive, planes: SlicingPlanes, s: np.ndarray,
     (_march_brackets). The grid spares the exact march of 28 x 48 x 49 points on most
     candidates."""
     lo, hi, ok = _grid_brackets(grid, centres, directions)
-    ok[ok] = _holds(primitive, planes, s[ok], centres[ok], directions, lo[ok], hi[ok], stubs)
+    if ok.any():
+        ok[ok] = _holds(primitive, planes, s[ok], centres[ok], directions, lo[ok], hi[ok],
+                        stubs)
     redo = ~ok
     if redo.any():
         marched = _march_brackets(primitive, planes, s[redo], centres[redo], directions,

@@ -583,9 +583,8 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
     """The loft through slices of the exact solid (geometry/slices.py), by the first
     family of planes that cuts every slice in one star-shaped region and whose solid is
     valid and within `tolerance` of `volume` (after the first `skip` such solids); None
-    if there is none. Its surfaces
-    interpolate the true boundary, so the fold's creases come out rounded by about a
-    slice's spacing.
+    if there is none. Its surfaces interpolate the true boundary, so the fold's creases
+    come out rounded by about a slice's spacing.
 
     The solid is sliced with its end stubs first (slices.end_stubs: straight
     continuations past the caps), and the loft's rings moved onto the caps' planes
