@@ -373,19 +373,28 @@ def _inside(primitive: SweepPrimitive, planes: SlicingPlanes, local: np.ndarray,
     return inside.reshape(local.shape[:-1])
 
 
+def _ray_points(s: np.ndarray, centres: np.ndarray, directions: np.ndarray,
+                radii: np.ndarray) -> np.ndarray:
+    """Local coordinates of points at radii (S, P, ...) from each slice's centre (S, 2)
+    along unit directions (P, 2), in the slices at s (S,) -> (S, P, ..., 3)."""
+    extra = (1,) * (radii.ndim - 2)
+    S, P = radii.shape[:2]
+    across = (centres.reshape(S, 1, *extra, 2)
+              + radii[..., None] * directions.reshape(1, P, *extra, 2))
+    along = np.broadcast_to(s.reshape(S, 1, *extra, 1), (*radii.shape, 1))
+    return np.concatenate([along, across], axis=-1)
+
+
 def _ray_radii(primitive: SweepPrimitive, planes: SlicingPlanes, s: np.ndarray,
                centres: np.ndarray, directions: np.ndarray, bracket: _Bracket,
                stubs: Sequence[EndStub] = ()) -> np.ndarray:
     """Distance from each slice's centre (S, 2) to its boundary along unit directions
     (P, 2) -> (S, P), by BISECTIONS halvings of a bracket (lo, hi, each (S, P)) with lo
     inside and hi outside."""
-    S, P = len(s), len(directions)
-    along = np.broadcast_to(s.reshape(S, 1, 1), (S, P, 1))
     lo, hi = bracket
     for _ in range(BISECTIONS):
         mid = 0.5 * (lo + hi)
-        across = centres[:, None, :] + mid[..., None] * directions[None]
-        hit = _inside(primitive, planes, np.concatenate([along, across], axis=-1), stubs)
+        hit = _inside(primitive, planes, _ray_points(s, centres, directions, mid), stubs)
         lo, hi = np.where(hit, mid, lo), np.where(hit, hi, mid)
     return 0.5 * (lo + hi)
 
@@ -452,12 +461,9 @@ def _march_brackets(primitive: SweepPrimitive, planes: SlicingPlanes, s: np.ndar
                     stubs: Sequence[EndStub] = ()) -> _Bracket | None:
     """Brackets as _brackets, by the exact inside test at GRID steps along each ray up
     to `reach`; None where a ray leaves the region more than once."""
-    S, P = len(s), len(directions)
     steps = np.linspace(0.0, reach, GRID)
-    across = (centres[:, None, None, :]
-              + steps[None, None, :, None] * directions[None, :, None, :])  # (S, P, G, 2)
-    along = np.broadcast_to(s.reshape(S, 1, 1, 1), (S, P, GRID, 1))
-    inside = _inside(primitive, planes, np.concatenate([along, across], axis=-1), stubs)
+    radii = np.broadcast_to(steps, (len(s), len(directions), GRID))
+    inside = _inside(primitive, planes, _ray_points(s, centres, directions, radii), stubs)
     leaves = np.argmin(inside, axis=2)  # the first sample outside
     later = np.arange(GRID) >= leaves[..., None]
     if not inside[:, :, 0].all() or (leaves == 0).any() or (inside & later).any():
@@ -470,11 +476,9 @@ def _holds(primitive: SweepPrimitive, planes: SlicingPlanes, s: np.ndarray,
            stubs: Sequence[EndStub] = ()) -> np.ndarray:
     """Per slice at s (S,), whether every bracket (lo, hi, each (S, P)) of its rays has
     lo inside and hi outside, by the exact test -> (S,)."""
-    S, P = len(s), len(directions)
-    along = np.broadcast_to(s.reshape(1, S, 1, 1), (2, S, P, 1))
-    across = centres[None, :, None, :] + np.stack([lo, hi])[..., None] * directions[None, None]
-    inside = _inside(primitive, planes, np.concatenate([along, across], axis=-1), stubs)
-    return inside[0].all(axis=1) & ~inside[1].any(axis=1)
+    ends = np.stack([lo, hi], axis=-1)  # (S, P, 2)
+    inside = _inside(primitive, planes, _ray_points(s, centres, directions, ends), stubs)
+    return inside[..., 0].all(axis=1) & ~inside[..., 1].any(axis=1)
 
 
 def slice_rings(primitive: SweepPrimitive, planes: SlicingPlanes,
@@ -526,7 +530,6 @@ def ring_candidates(primitive: SweepPrimitive, planes: SlicingPlanes,
     angles = np.linspace(0.0, 2.0 * np.pi, RAYS, endpoint=False)
     directions = np.stack([np.cos(angles), np.sin(angles)], axis=-1)
     reach = float(np.hypot(*(local[:, 1:].max(axis=0) - local[:, 1:].min(axis=0))))
-    along = np.broadcast_to(s[:, None, None], (SLICES, RAYS, 1))
     for centre in (_centroids, _deepest):
         centres = centre(occupied, g1, g2)
         bracket = _brackets(primitive, planes, s, centres, directions, (occupied, g1, g2),
@@ -534,8 +537,7 @@ def ring_candidates(primitive: SweepPrimitive, planes: SlicingPlanes,
         if bracket is None:
             continue
         radii = _ray_radii(primitive, planes, s, centres, directions, bracket, stubs)
-        across = centres[:, None, :] + radii[..., None] * directions[None]
-        yield SliceRings(u, planes.to_world(np.concatenate([along, across], axis=-1)),
+        yield SliceRings(u, planes.to_world(_ray_points(s, centres, directions, radii)),
                          angles)
 
 

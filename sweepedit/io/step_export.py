@@ -453,8 +453,7 @@ def primitive_solid(primitive: SweepPrimitive, index: int = 0,
     # Where the axis comes back, the sweep overlaps itself: the closed form counts that
     # twice, and a loft through its sections would intersect itself.
     if sections_cross(primitive):
-        return _sections_union_solid(primitive, normalization, what,
-                                     folds_onto_itself(primitive), alternative)
+        return _sections_union_solid(primitive, normalization, what, alternative)
     if alternative:
         raise StepExportError(f"{what}: its solid is built one way only")
     expected = closed_form_volume(primitive) * scale**3
@@ -542,7 +541,7 @@ def _ring_patches(rings: np.ndarray, t: np.ndarray, angles: np.ndarray
 
 
 def _sections_union_solid(primitive: SweepPrimitive, normalization: Normalization | None,
-                          what: str, folds: bool, alternative: int = 0) -> Any:
+                          what: str, alternative: int = 0) -> Any:
     """A primitive whose sections cross (it folds onto itself, or its axis comes back onto
     itself): its solid is the union of its sections, whose volume the closed form does not
     give, and a loft through the sections would overlap itself. It is lofted through
@@ -570,7 +569,8 @@ def _sections_union_solid(primitive: SweepPrimitive, normalization: Normalizatio
     if alternative:
         raise StepExportError(f"{what}: no other loft through slices of it is within 1% "
                               "of its volume")
-    how, advice = (("folds onto itself", "make it thinner or its bend wider") if folds
+    how, advice = (("folds onto itself", "make it thinner or its bend wider")
+                   if folds_onto_itself(primitive)
                    else ("comes back onto itself",
                          "move its control points apart where its axis comes back"))
     raise StepExportError(f"{what} {how} in a way STEP export cannot build as a correct "
