@@ -63,6 +63,11 @@ class NativeView(QVTKRenderWindowInteractor, BasePlotter):
         self.interactor = self
         self.ren_win = self.GetRenderWindow()
         self.ren_win.SetMultiSamples(multi_samples)
+        # Colour only to the window: VTK's default also copies the depth buffer into the
+        # window's, through a full-screen shader pass that nothing here reads (picking,
+        # screenshots and depth reads use VTK's own framebuffers). 4 ms of a drag's frame
+        # on software GL (BENCHMARKS.md, issue 16).
+        self.ren_win.SetFrameBlitModeToBlitToCurrent()
         for renderer in self.renderers:
             renderer.view_isometric()
             self.ren_win.AddRenderer(renderer)

@@ -38,6 +38,13 @@ def test_on_x11_the_view_is_a_native_window_that_shows_the_primitives(qtbot, win
     rows = np.frombuffer(rgb.constBits(), np.uint8).reshape(h, rgb.bytesPerLine())
     assert np.array_equal(rows[:, :3 * w].reshape(h, w, 3), pixels)
     assert not np.array_equal(pixels[::-1], pixels)
+    # And it reached the window on screen (VTK copies only its colour there).
+    view.render()
+    shown = view.screen().grabWindow(view.winId()).toImage()
+    shown = shown.convertToFormat(QImage.Format.Format_RGB888)
+    assert (shown.width(), shown.height()) == (w, h)
+    rows = np.frombuffer(shown.constBits(), np.uint8).reshape(h, shown.bytesPerLine())
+    assert np.array_equal(rows[:, :3 * w].reshape(h, w, 3), pixels)
 
 
 @pytest.mark.gui
