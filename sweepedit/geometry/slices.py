@@ -56,6 +56,8 @@ from sweepedit.geometry.sweep import (
 SLICES = 30
 RAYS = 48
 GRID = 49
+# Every this many slices' coarse grid is tested before the others' (ring_candidates).
+PRESCREEN_STRIDE = 4
 INSET = 2e-3
 BISECTIONS = 18
 # Steps along a ray on a slice's occupancy grid, in the cell's shorter side, and how
@@ -522,12 +524,19 @@ def ring_candidates(primitive: SweepPrimitive, planes: SlicingPlanes,
 
     # Every other line first: most families tried are rejected by it, at a quarter of
     # the cost, and the full grid is then tested only where that one leaves it open.
+    # Every fourth slice before the others: a slice in two regions is seldom alone, and
+    # the family is then rejected at a quarter of that cost again (each slice is judged
+    # on its own, so the order changes nothing else).
     coarse_lines = np.arange(0, GRID, 2)
-    slab, i, j = (a.ravel() for a in np.meshgrid(np.arange(SLICES), coarse_lines,
-                                                 coarse_lines, indexing="ij"))
-    coarse = inside_at(slab, i, j).reshape(SLICES, len(coarse_lines), len(coarse_lines))
-    if not _one_region_each(coarse):
-        return
+    C = len(coarse_lines)
+    coarse = np.zeros((SLICES, C, C), dtype=bool)
+    first_slices = np.arange(0, SLICES, PRESCREEN_STRIDE)
+    for part in (first_slices, np.setdiff1d(np.arange(SLICES), first_slices)):
+        slab, i, j = (a.ravel() for a in np.meshgrid(part, coarse_lines, coarse_lines,
+                                                     indexing="ij"))
+        coarse[part] = inside_at(slab, i, j).reshape(len(part), C, C)
+        if not _one_region_each(coarse[part]):
+            return
     occupied, open_ = _refined(coarse)
     slab, i, j = np.nonzero(open_)
     occupied[slab, i, j] = inside_at(slab, i, j)
