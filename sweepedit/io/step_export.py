@@ -839,22 +839,25 @@ def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
             # Writing is cheap (0.2 s for a union of 8), reading back and checking is not:
             # the size is looked at first, and only one file is read back where it can.
             _write_step(parts, tmp, path, STEP_DECIMALS)
-            if tmp.stat().st_size > budget:
-                try:
-                    return _checked_bytes(parts, tmp, path, check_read_back,
-                                          face_curves=False)
-                except StepExportError:
-                    pass  # read back otherwise than checked: the file with the curves
+            if tmp.stat().st_size <= budget:  # read that file back, not another copy
+                return _checked_bytes(parts, tmp, path, check_read_back, face_curves=True,
+                                      written=True)
+            try:
+                return _checked_bytes(parts, tmp, path, check_read_back,
+                                      face_curves=False)
+            except StepExportError:
+                pass  # read back otherwise than checked: the file with the curves
         return _checked_bytes(parts, tmp, path, check_read_back, face_curves=True)
 
 
 def _checked_bytes(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
-                   check_read_back: bool, face_curves: bool) -> bytes:
+                   check_read_back: bool, face_curves: bool, written: bool = False) -> bytes:
     """_read_back_checked with STEP_DECIMALS decimals, else with all digits (see
-    _step_bytes)."""
+    _step_bytes). `written`: tmp already holds `parts` written with STEP_DECIMALS
+    decimals and these face_curves."""
     try:
         return _read_back_checked(parts, tmp, path, STEP_DECIMALS, check_read_back,
-                                  face_curves)
+                                  face_curves, written)
     except _InvalidOnReadingError:
         raise  # not the rounding: the same at 13 digits (bone.json's unions)
     except StepExportError:
@@ -867,10 +870,11 @@ class _InvalidOnReadingError(StepExportError):
 
 def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
                        decimals: int | None, check_validity: bool = False,
-                       face_curves: bool = True) -> bytes:
-    """The bytes of `parts` written as STEP (at tmp, by _write_step), read back and each
-    solid's volume compared with the one checked in memory (and with `check_validity`,
-    each solid checked by OpenCascade's checker). OpenCascade's writer turns a few sewn
+                       face_curves: bool = True, written: bool = False) -> bytes:
+    """The bytes of `parts` written as STEP (at tmp, by _write_step, unless `written`
+    says tmp holds them so already), read back and each solid's volume compared with
+    the one checked in memory (and with `check_validity`, each solid checked by
+    OpenCascade's checker). OpenCascade's writer turns a few sewn
     solids inside out (the same volume, negated, on reading; seen on 1 of 378
     primitives): such a solid is written reversed instead (in `parts`); anything else that
     differs is an error, not a file."""
@@ -878,8 +882,9 @@ def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
     from OCP.TopoDS import TopoDS
 
     expected = [solid_volume(shape) for shape, _, _ in parts]
-    for _attempt in range(2):
-        _write_step(parts, tmp, path, decimals, face_curves)
+    for attempt in range(2):
+        if attempt or not written:
+            _write_step(parts, tmp, path, decimals, face_curves)
         read = read_step(tmp)
         if len(read) != len(parts):
             raise StepExportError(f"{path}: {len(read)} solids read back from the "
