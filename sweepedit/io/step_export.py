@@ -874,10 +874,10 @@ def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
     """The bytes of `parts` written as STEP (at tmp, by _write_step, unless `written`
     says tmp holds them so already), read back and each solid's volume compared with
     the one checked in memory (and with `check_validity`, each solid checked by
-    OpenCascade's checker). OpenCascade's writer turns a few sewn
-    solids inside out (the same volume, negated, on reading; seen on 1 of 378
-    primitives): such a solid is written reversed instead (in `parts`); anything else that
-    differs is an error, not a file."""
+    OpenCascade's checker). OpenCascade's writer turns a few sewn solids inside out (the
+    same volume, negated, on reading; seen on 1 of 378 primitives): such a solid is
+    written reversed instead (in `parts`); anything else that differs is an error, not a
+    file."""
     from OCP.BRepCheck import BRepCheck_Analyzer
     from OCP.TopoDS import TopoDS
 
