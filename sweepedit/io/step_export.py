@@ -21,9 +21,9 @@ reaches past the axis' centre of curvature; or its axis comes back onto itself) 
 loft into a self-intersecting solid that OpenCascade's checker passes. It is built as a
 loft through slices of the true solid by planes that do not cross in it instead
 (geometry/slices.py), written only when that is within 1% of a quasi-Monte Carlo
-estimate of its true volume, and otherwise refused with an error naming it (2 to 5 of
-the 122 to 127 folding primitives of the official files and two sets of K = 8 fits of the
-30 shapes; BENCHMARKS.md).
+estimate of its true volume and OpenCascade's self-interference check passes it, and
+otherwise refused with an error naming it (2 to 5 of the 122 to 127 folding primitives
+of the official files and two sets of K = 8 fits of the 30 shapes; BENCHMARKS.md).
 
 OpenCascade (the `cad` extra, package cadquery-ocp-novtk) is imported only when a STEP
 file is made, so the rest of sweepedit works without it.
@@ -568,23 +568,24 @@ def _sections_union_solid(primitive: SweepPrimitive, normalization: Normalizatio
         return solid
     if alternative:
         raise StepExportError(f"{what}: no other loft through slices of it is within 1% "
-                              "of its volume")
+                              "of its volume without crossing itself")
     how, advice = (("folds onto itself", "make it thinner or its bend wider")
                    if folds_onto_itself(primitive)
                    else ("comes back onto itself",
                          "move its control points apart where its axis comes back"))
     raise StepExportError(f"{what} {how} in a way STEP export cannot build as a correct "
                           "solid (no loft through slices of it is within 1% of "
-                          f"its volume); export a mesh, or {advice}")
+                          f"its volume without crossing itself); export a mesh, or {advice}")
 
 
 def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None,
                   what: str, volume: float, tolerance: float, skip: int = 0) -> Any | None:
     """The loft through slices of the exact solid (geometry/slices.py), by the first
     family of planes that cuts every slice in one star-shaped region and whose solid is
-    valid and within `tolerance` of `volume` (after the first `skip` such solids); None
-    if there is none. Its surfaces interpolate the true boundary, so the fold's creases
-    come out rounded by about a slice's spacing.
+    valid, within `tolerance` of `volume` and does not cross itself (crosses_itself; the
+    slower check last), after the first `skip` such solids; None if there is none. Its
+    surfaces interpolate the true boundary, so the fold's creases come out rounded by
+    about a slice's spacing.
 
     The solid is sliced with its end stubs first (slices.end_stubs: straight
     continuations past the caps), and the loft's rings moved onto the caps' planes
@@ -607,6 +608,8 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
                                         normalization, what)
                     _check_solid(solid, volume, tolerance, what,
                                  "the quasi-Monte Carlo estimate of its sections' union")
+                    if crosses_itself(solid):
+                        continue
                 except StepExportError:
                     continue  # other centres, no stubs or another family may do
                 if skip == 0:
@@ -676,6 +679,22 @@ def _check_solid(shape: Any, expected: float, tolerance: float, what: str,
         raise StepExportError(f"{what}: the solid's volume {volume:.6g} is "
                               f"{100.0 * (volume / expected - 1.0):+.3f}% off {truth} "
                               f"{expected:.6g}; not written")
+
+
+def crosses_itself(shape: Any) -> bool:
+    """Whether OpenCascade's check for boolean operations finds faces of `shape` that
+    cross each other or themselves. A loft through slices can cross itself by a sliver
+    where its cubics bend sharply (near a fold's crease or an end), which the volume
+    check passes, BRepCheck_Analyzer does not look for, and a CAD tool's booleans trip
+    on: 10 of 125 folding solids did (BENCHMARKS.md, STEP export). 0.3-1 s for a
+    folding solid, on both cores."""
+    from OCP.BRepAlgoAPI import BRepAlgoAPI_Check
+
+    check = BRepAlgoAPI_Check()
+    check.SetData(shape, False, True)  # self-interference only, not the small-edge test
+    check.SetRunParallel(True)
+    check.Perform()
+    return not check.IsValid()
 
 
 # --------------------------------------------------------------------------- union
