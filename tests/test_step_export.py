@@ -345,6 +345,35 @@ def test_a_mildly_folding_primitive_is_built_to_its_true_volume(
 
 
 @needs_occ
+def test_a_solid_that_crosses_itself_once_rounded_is_written_with_all_digits(
+        tmp_path: Path) -> None:
+    from sweepedit.io import step_export
+
+    # The benchmark's 4th random primitive, with very sharp cusps (d = 0.34): its solid
+    # passes OpenCascade's self-interference check in memory, but written with 8
+    # decimals it reads back as one that crosses itself (within OpenCascade's tolerance).
+    prim = SweepPrimitive([[0.013982863884432317, -0.19541729643011177, 0.06765826665475877],
+                           [-0.0340065780587917, -0.10419973341170652, -0.14535215656024159],
+                           [-0.02916227046904618, 0.08180298388465324, -0.09112528545709703],
+                           [0.04918598464340565, 0.21781404595716497, 0.16881917536257995]],
+                          a=0.10890462941434095, b=0.02755190355610976,
+                          degree=0.34413473721955695,
+                          scaling=(-0.20724702718046484, -0.09925523223843569), name="cusps")
+    assert not folds_onto_itself(prim)
+    solid = step_export.primitive_solid(prim)
+    assert not step_export.crosses_itself(solid)
+    rounded = tmp_path / "rounded.step"
+    step_export._write_step([(solid, "cusps", "#808080")], rounded, rounded, decimals=8)
+    assert step_export.crosses_itself(read_step(rounded)[0].shape)
+    # The file written is checked as read back, and so comes with all digits.
+    out = tmp_path / "cusps.step"
+    export_step(Abstraction([prim]), out)
+    solids = _check(out)
+    assert not step_export.crosses_itself(solids[0].shape)
+    assert solid_volume(solids[0].shape) == pytest.approx(closed_form_volume(prim), rel=1e-3)
+
+
+@needs_occ
 def test_a_folding_solid_is_never_written_short_of_its_volume(tmp_path: Path) -> None:
     """The official at_sign.txt's fifth primitive: its clamped loft came out 1.55 % short
     of a 10^6-point Monte Carlo volume, and the check passed it because its tolerance

@@ -38,7 +38,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from scipy.interpolate import make_interp_spline
@@ -137,6 +137,8 @@ SEW_TOLERANCE = 1e-7
 _GAUSS = np.polynomial.legendre.leggauss(48)
 
 Progress = Callable[[float, str], None]
+# What a solid read back from its file is checked for besides its volume (_read_back_checked).
+ReadBackCheck = Literal["volume", "validity", "crossing"]
 Cancelled = Callable[[], bool]
 
 
@@ -843,12 +845,13 @@ def _color(hex_color: str) -> Any:
 
 
 def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
-                check_read_back: bool = False, budget: int | None = None) -> bytes:
+                check_read_back: ReadBackCheck = "volume", budget: int | None = None) -> bytes:
     """Shapes with names and colours [(shape, name, '#rrggbb')] as the bytes of an AP214
     STEP file that reads back as checked (_read_back_checked), with STEP_DECIMALS
     decimals, or with OpenCascade's own 13 digits where that file reads back with other
-    solids or volumes (the rounding could be why; an invalid solid of the right volume
-    reads back invalid at 13 digits too, and is not written again). A file over `budget`
+    solids or volumes, or solids that cross themselves (the rounding could be why; an
+    invalid solid of the right volume reads back invalid at 13 digits too, and is not
+    written again). A file over `budget`
     bytes is written without the edges' curves on their faces where it reads back as
     checked that way (_checked_bytes). `path` is the file meant, for messages."""
     parts = list(parts)
@@ -870,7 +873,8 @@ def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
 
 
 def _checked_bytes(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
-                   check_read_back: bool, face_curves: bool, written: bool = False) -> bytes:
+                   check_read_back: ReadBackCheck, face_curves: bool,
+                   written: bool = False) -> bytes:
     """_read_back_checked with STEP_DECIMALS decimals, else with all digits (see
     _step_bytes). `written`: tmp already holds `parts` written with STEP_DECIMALS
     decimals and these face_curves."""
@@ -888,12 +892,15 @@ class _InvalidOnReadingError(StepExportError):
 
 
 def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
-                       decimals: int | None, check_validity: bool = False,
+                       decimals: int | None, check: ReadBackCheck = "volume",
                        face_curves: bool = True, written: bool = False) -> bytes:
     """The bytes of `parts` written as STEP (at tmp, by _write_step, unless `written`
     says tmp holds them so already), read back and each solid's volume compared with
-    the one checked in memory (and with `check_validity`, each solid checked by
-    OpenCascade's checker). OpenCascade's writer turns a few sewn solids inside out (the
+    the one checked in memory, and with `check` "validity" each solid checked by
+    OpenCascade's checker, with "crossing" by its self-interference check
+    (crosses_itself: a solid that passes it in memory can cross itself within
+    OpenCascade's tolerance once its numbers are rounded; 2 of 327 did at 8 decimals,
+    BENCHMARKS.md, STEP export). OpenCascade's writer turns a few sewn solids inside out (the
     same volume, negated, on reading; seen on 1 of 378 primitives): such a solid is
     written reversed instead (in `parts`); anything else that differs is an error, not a
     file."""
@@ -917,10 +924,16 @@ def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
             raise StepExportError(f"{path}: {', '.join(wrong)} read back from the STEP "
                                   "file with another volume than was checked; not written")
         invalid = [parts[i][1] for i, r in enumerate(read)
-                   if check_validity and not BRepCheck_Analyzer(r.shape).IsValid()]
+                   if check == "validity" and not BRepCheck_Analyzer(r.shape).IsValid()]
         if invalid:
             raise _InvalidOnReadingError(f"{path}: {', '.join(invalid)} read back from "
                                          "the STEP file as an invalid solid; not written")
+        crossing = [parts[i][1] for i, r in enumerate(read)
+                    if check == "crossing" and crosses_itself(r.shape)]
+        if crossing:
+            raise StepExportError(f"{path}: {', '.join(crossing)} read back from the STEP "
+                                  "file as a solid that crosses itself; not written. "
+                                  "Export it as a mesh, or hide it and export the others")
         if not flipped:
             return tmp.read_bytes()
         for i in flipped:
@@ -1031,7 +1044,7 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
             # A union read back is checked by OpenCascade's checker too: one fused with
             # its solids nudged came back invalid from a file once (bone.json).
             return _step_bytes([(union, path.stem, primitives[0].color)], path,
-                               check_read_back=True,
+                               check_read_back="validity",
                                budget=STEP_BYTES_PER_PRIMITIVE * len(primitives))
 
         def checked(fused: Any) -> bytes:
@@ -1098,7 +1111,8 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
         parts = [(s, p.name or f"primitive {i}", p.color)
                  for s, (i, p) in zip(solids, chosen, strict=True)]
         step(len(chosen), f"writing {path.name}")
-        data = _step_bytes(parts, path)  # each solid alone is well within the budget
+        # each solid alone is well within the budget
+        data = _step_bytes(parts, path, check_read_back="crossing")
         solids_written = len(parts)
     atomic_write_bytes(path, data)
     report(1.0, f"wrote {path.name}")
