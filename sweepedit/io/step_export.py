@@ -16,7 +16,9 @@ control curves are within a tolerance of the exact ones at every midpoint.
 Every solid is checked with OpenCascade's analyser and against its volume in closed form
 (the profile's area times the integral of f(t)^2 |s'(t)|, exact when nothing folds)
 before anything is written; a union is checked against a Monte Carlo estimate from the
-exact inside test. A sweep whose sections cross (it folds onto itself: its profile
+exact inside test. What is written is read back and checked again: each solid's volume,
+and each primitive's solid for crossing itself (OpenCascade's self-interference check),
+a union's for validity. A sweep whose sections cross (it folds onto itself: its profile
 reaches past the axis' centre of curvature; or its axis comes back onto itself) would
 loft into a self-intersecting solid that OpenCascade's checker passes. It is built as a
 loft through slices of the true solid by planes that do not cross in it instead
