@@ -344,6 +344,49 @@ def test_a_mildly_folding_primitive_is_built_to_its_true_volume(
     assert BRepAlgoAPI_Check(solids[0].shape, True, True).IsValid()
 
 
+def _side_poles(shape) -> list[np.ndarray]:
+    """The poles (Nu, Nv, 3) of each B-spline face of an OpenCascade shape, in order."""
+    from OCP.BRepAdaptor import BRepAdaptor_Surface
+    from OCP.GeomAbs import GeomAbs_BSplineSurface
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    out = []
+    explorer = TopExp_Explorer(shape, TopAbs_FACE)
+    while explorer.More():
+        surface = BRepAdaptor_Surface(TopoDS.Face(explorer.Current()))
+        if surface.GetType() == GeomAbs_BSplineSurface:
+            poles = surface.BSpline().Poles()
+            out.append(np.array([[[poles.Value(i, j).X(), poles.Value(i, j).Y(),
+                                   poles.Value(i, j).Z()]
+                                  for j in range(poles.LowerCol(), poles.UpperCol() + 1)]
+                                 for i in range(poles.LowerRow(), poles.UpperRow() + 1)]))
+        explorer.Next()
+    return out
+
+
+@needs_occ
+def test_a_folding_solid_is_checked_as_it_reads_back_from_its_file(tmp_path: Path) -> None:
+    from sweepedit.io import step_export
+
+    # The knuckle above: its solid is checked for crossing itself as read back from its
+    # STEP text (a file does not check it again), so written to a file it must read back
+    # with the very same side surfaces, to the last bit.
+    prim = SweepPrimitive([[-0.0739, -0.2348, -0.2147], [-0.0983, -0.2846, -0.1878],
+                           [-0.0453, -0.1523, 0.0022]], a=0.0379, b=0.0399, degree=1.8433,
+                          scaling=(0.4226, 0.4521), name="knuckle")
+    solid = step_export.primitive_solid(prim)
+    assert not step_export.crosses_itself(solid)
+    out = tmp_path / "knuckle.step"
+    export_step(Abstraction([prim, _curved()[0]]), out)
+    written = _side_poles(_check(out)[0].shape)
+    built = _side_poles(solid)
+    assert len(built) == len(written) == 4
+    for a, b in zip(built, written, strict=True):
+        assert np.array_equal(a, b)
+
+
 @needs_occ
 def test_a_solid_that_crosses_itself_once_rounded_is_written_with_all_digits(
         tmp_path: Path) -> None:

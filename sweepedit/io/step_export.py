@@ -586,10 +586,11 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
                   what: str, volume: float, tolerance: float, skip: int = 0) -> Any | None:
     """The loft through slices of the exact solid (geometry/slices.py), by the first
     family of planes that cuts every slice in one star-shaped region and whose solid is
-    valid, within `tolerance` of `volume` and does not cross itself (crosses_itself; the
-    slower check last), after the first `skip` such solids; None if there is none. Its
-    surfaces interpolate the true boundary, so the fold's creases come out rounded by
-    about a slice's spacing.
+    valid, within `tolerance` of `volume` and, as read back from its STEP text
+    (_as_written), does not cross itself (crosses_itself; the slower check last), after
+    the first `skip` such solids; None if there is none. It is returned as read back, so
+    a file need not check it for crossing again. Its surfaces interpolate the true
+    boundary, so the fold's creases come out rounded by about a slice's spacing.
 
     The solid is sliced with its end stubs first (slices.end_stubs: straight
     continuations past the caps), and the loft's rings moved onto the caps' planes
@@ -612,6 +613,7 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
                                         normalization, what)
                     _check_solid(solid, volume, tolerance, what,
                                  "the quasi-Monte Carlo estimate of its sections' union")
+                    solid = _as_written(solid, what)
                     if crosses_itself(solid):
                         continue
                 except StepExportError:
@@ -683,6 +685,30 @@ def _check_solid(shape: Any, expected: float, tolerance: float, what: str,
         raise StepExportError(f"{what}: the solid's volume {volume:.6g} is "
                               f"{100.0 * (volume / expected - 1.0):+.3f}% off {truth} "
                               f"{expected:.6g}; not written")
+
+
+def _as_written(solid: Any, what: str) -> Any:
+    """The solid as read back from the STEP text export_step writes of it (with
+    STEP_DECIMALS decimals): a folding solid is checked for crossing itself once, as it
+    will be read, where checking it in memory and again read back from the file cost
+    0.5 s of the 1.1 s median of a folding primitive (BENCHMARKS.md, STEP export). The
+    rounding can tip a contact within OpenCascade's tolerance into a crossing (bone.json's
+    6th), and written again the read-back solid has the same surfaces and edges to the
+    last digit (only its caps' planes and their edges' curves on them move, by 1e-10).
+    Turned right way out where it reads back inside out (see _read_back_checked)."""
+    from OCP.TopoDS import TopoDS
+
+    with tempfile.TemporaryDirectory(prefix="sweepedit-step-") as folder:
+        tmp = Path(folder) / "solid.step"
+        _write_step([(solid, "solid", "#000000")], tmp, tmp, STEP_DECIMALS)
+        read = read_step(tmp)
+    expected = solid_volume(solid)
+    volume = solid_volume(read[0].shape) if len(read) == 1 else 0.0
+    if not abs(abs(volume) - expected) <= READ_BACK_TOLERANCE * abs(expected):
+        raise StepExportError(f"{what}: its solid reads back from STEP text with another "
+                              "volume; not written")
+    shape = read[0].shape if volume > 0.0 else read[0].shape.Reversed()
+    return TopoDS.Solid(shape)
 
 
 def crosses_itself(shape: Any) -> bool:
@@ -847,7 +873,7 @@ def _color(hex_color: str) -> Any:
 
 
 def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
-                check_read_back: ReadBackCheck = "volume", budget: int | None = None) -> bytes:
+                checks: Sequence[ReadBackCheck], budget: int | None = None) -> bytes:
     """Shapes with names and colours [(shape, name, '#rrggbb')] as the bytes of an AP214
     STEP file that reads back as checked (_read_back_checked), with STEP_DECIMALS
     decimals, or with OpenCascade's own 13 digits where that file reads back with other
@@ -855,8 +881,12 @@ def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
     invalid solid of the right volume reads back invalid at 13 digits too, and is not
     written again). A file over `budget`
     bytes is written without the edges' curves on their faces where it reads back as
-    checked that way (_checked_bytes). `path` is the file meant, for messages."""
+    checked that way (_checked_bytes). `checks`: what each part is checked for on reading
+    back. `path` is the file meant, for messages."""
     parts = list(parts)
+    checks = list(checks)
+    if len(checks) != len(parts):
+        raise ValueError(f"{len(checks)} read-back checks for {len(parts)} solids")
     with tempfile.TemporaryDirectory(prefix="sweepedit-step-") as folder:
         tmp = Path(folder) / "export.step"
         if budget is not None:
@@ -864,29 +894,29 @@ def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
             # the size is looked at first, and only one file is read back where it can.
             _write_step(parts, tmp, path, STEP_DECIMALS)
             if tmp.stat().st_size <= budget:  # read that file back, not another copy
-                return _checked_bytes(parts, tmp, path, check_read_back, face_curves=True,
+                return _checked_bytes(parts, tmp, path, checks, face_curves=True,
                                       written=True)
             try:
-                return _checked_bytes(parts, tmp, path, check_read_back,
+                return _checked_bytes(parts, tmp, path, checks,
                                       face_curves=False)
             except StepExportError:
                 pass  # read back otherwise than checked: the file with the curves
-        return _checked_bytes(parts, tmp, path, check_read_back, face_curves=True)
+        return _checked_bytes(parts, tmp, path, checks, face_curves=True)
 
 
 def _checked_bytes(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
-                   check_read_back: ReadBackCheck, face_curves: bool,
+                   checks: list[ReadBackCheck], face_curves: bool,
                    written: bool = False) -> bytes:
     """_read_back_checked with STEP_DECIMALS decimals, else with all digits (see
     _step_bytes). `written`: tmp already holds `parts` written with STEP_DECIMALS
     decimals and these face_curves."""
     try:
-        return _read_back_checked(parts, tmp, path, STEP_DECIMALS, check_read_back,
+        return _read_back_checked(parts, tmp, path, STEP_DECIMALS, checks,
                                   face_curves, written)
     except _InvalidOnReadingError:
         raise  # not the rounding: the same at 13 digits (bone.json's unions)
     except StepExportError:
-        return _read_back_checked(parts, tmp, path, None, check_read_back, face_curves)
+        return _read_back_checked(parts, tmp, path, None, checks, face_curves)
 
 
 class _InvalidOnReadingError(StepExportError):
@@ -894,12 +924,12 @@ class _InvalidOnReadingError(StepExportError):
 
 
 def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
-                       decimals: int | None, check: ReadBackCheck = "volume",
+                       decimals: int | None, checks: list[ReadBackCheck],
                        face_curves: bool = True, written: bool = False) -> bytes:
     """The bytes of `parts` written as STEP (at tmp, by _write_step, unless `written`
     says tmp holds them so already), read back and each solid's volume compared with
-    the one checked in memory, and with `check` "validity" each solid checked by
-    OpenCascade's checker, with "crossing" by its self-interference check
+    the one checked in memory, and each solid whose entry of `checks` says "validity"
+    checked by OpenCascade's checker, "crossing" by its self-interference check
     (crosses_itself: a solid that passes it in memory can cross itself within
     OpenCascade's tolerance once its numbers are rounded; 2 of 327 did at 8 decimals,
     BENCHMARKS.md, STEP export). OpenCascade's writer turns a few sewn solids inside out (the
@@ -925,12 +955,12 @@ def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
         if wrong:
             raise StepExportError(f"{path}: {', '.join(wrong)} read back from the STEP "
                                   "file with another volume than was checked; not written")
-        invalid = [parts[i][1] for i, r in enumerate(read)
+        invalid = [parts[i][1] for i, (r, check) in enumerate(zip(read, checks, strict=True))
                    if check == "validity" and not BRepCheck_Analyzer(r.shape).IsValid()]
         if invalid:
             raise _InvalidOnReadingError(f"{path}: {', '.join(invalid)} read back from "
                                          "the STEP file as an invalid solid; not written")
-        crossing = [parts[i][1] for i, r in enumerate(read)
+        crossing = [parts[i][1] for i, (r, check) in enumerate(zip(read, checks, strict=True))
                     if check == "crossing" and crosses_itself(r.shape)]
         if crossing:
             raise StepExportError(f"{path}: {', '.join(crossing)} read back from the STEP "
@@ -1046,7 +1076,7 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
             # A union read back is checked by OpenCascade's checker too: one fused with
             # its solids nudged came back invalid from a file once (bone.json).
             return _step_bytes([(union, path.stem, primitives[0].color)], path,
-                               check_read_back="validity",
+                               checks=["validity"],
                                budget=STEP_BYTES_PER_PRIMITIVE * len(primitives))
 
         def checked(fused: Any) -> bytes:
@@ -1113,8 +1143,11 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
         parts = [(s, p.name or f"primitive {i}", p.color)
                  for s, (i, p) in zip(solids, chosen, strict=True)]
         step(len(chosen), f"writing {path.name}")
-        # each solid alone is well within the budget
-        data = _step_bytes(parts, path, check_read_back="crossing")
+        # Each solid alone is well within the budget. A solid whose sections cross was
+        # checked for crossing itself as read back from its own STEP text already
+        # (_as_written), and is written with the same surfaces and edges again.
+        data = _step_bytes(parts, path, ["volume" if sections_cross(p) else "crossing"
+                                         for _, p in chosen])
         solids_written = len(parts)
     atomic_write_bytes(path, data)
     report(1.0, f"wrote {path.name}")
