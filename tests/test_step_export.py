@@ -417,6 +417,21 @@ def test_a_solid_that_crosses_itself_once_rounded_is_written_with_all_digits(
 
 
 @needs_occ
+def test_a_solid_that_crosses_itself_however_written_is_refused_by_name(
+        tmp_path: Path, monkeypatch) -> None:
+    from sweepedit.io import step_export
+
+    # A primitive that does not fold is checked for crossing itself only as read back
+    # from its file (at 8 decimals, then with all digits): made to fail there, it is an
+    # error naming it, and nothing is written.
+    monkeypatch.setattr(step_export, "crosses_itself", lambda shape: True)
+    out = tmp_path / "parts.step"
+    with pytest.raises(StepExportError, match=r"diamond read back .* crosses itself"):
+        export_step(Abstraction(_curved()[1:2]), out)
+    assert list(tmp_path.iterdir()) == []
+
+
+@needs_occ
 def test_a_folding_solid_is_never_written_short_of_its_volume(tmp_path: Path) -> None:
     """The official at_sign.txt's fifth primitive: its clamped loft came out 1.55 % short
     of a 10^6-point Monte Carlo volume, and the check passed it because its tolerance
