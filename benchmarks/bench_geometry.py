@@ -1,17 +1,22 @@
 """Geometry benchmark: mesher per primitive, union of 8 (display tubes, and the solid that
 export writes), exact inside test on 64^3.
 
-    .venv/bin/python benchmarks/bench_geometry.py
+    .venv/bin/python benchmarks/bench_geometry.py [--params DIR]
+
+DIR: the official SweepNet parameter files (39.txt and ant.txt are used); by default
+../shared/sweepnet_params beside the checkout.
 """
 
 from __future__ import annotations
 
+import argparse
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from sweepedit.cli import DEFAULT_SHAPES
 from sweepedit.geometry.inside import grid_points, inside_union
 from sweepedit.geometry.mesher import sweep_mesh, sweep_meshes, union_mesh
 from sweepedit.geometry.solid import solid_union
@@ -27,8 +32,16 @@ def timed(fn, repeat: int) -> list[float]:
     return out
 
 
+DEFAULT_PARAMS = Path(__file__).resolve().parents[2] / "shared" / "sweepnet_params"
+
+
 def main() -> None:
-    params = DEFAULT_SHAPES.parent / "sweepnet_params"
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--params", type=Path, default=DEFAULT_PARAMS)
+    params = parser.parse_args().params
+    if not (params / "39.txt").is_file() or not (params / "ant.txt").is_file():
+        sys.exit(f"bench_geometry: {params} does not hold 39.txt and ant.txt; "
+                 "pass --params DIR")
     prims = [p for f in ("39.txt", "ant.txt") for p in read_abstraction(params / f).primitives]
     eight = prims[:8]
     one = eight[0]
