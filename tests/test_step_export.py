@@ -551,51 +551,6 @@ def test_lofts_through_either_family_of_slices_keep_a_bends_volume() -> None:
         assert solid_volume(solid) == pytest.approx(closed_form_volume(bend), rel=5e-3)
 
 
-@needs_occ
-def test_a_loft_through_slices_ends_in_flat_caps_in_the_caps_planes() -> None:
-    # The same bend sliced along its chord (the planes cut both caps at 45 degrees) with
-    # its end stubs, and its rings moved onto the caps' planes: each cap is one flat face
-    # in its plane with the profile's area (within 1 %: the rim is the loft's section,
-    # through 48 rays cut at 45 degrees; 0.4 % here), and the volume is the closed
-    # form's within 3e-4 (without the stubs the rims come out rounded: 0.12 % short).
-    from OCP.BRepAdaptor import BRepAdaptor_Surface
-    from OCP.BRepGProp import BRepGProp
-    from OCP.GeomAbs import GeomAbs_Plane
-    from OCP.GProp import GProp_GProps
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    from sweepedit.io.step_export import _sliced_solid
-
-    bend = SweepPrimitive([[0.3, 0.0, 0.0], [0.3, 0.3, 0.0], [0.0, 0.3, 0.0]], a=0.05,
-                          b=0.04, degree=2.5, name="bend")
-    truth = closed_form_volume(bend)
-    solid = _sliced_solid(bend, None, "bend", truth, 0.01)
-    assert solid is not None
-    assert solid_volume(solid, 1e-7) == pytest.approx(truth, rel=3e-4)
-    planes = []
-    explorer = TopExp_Explorer(solid, TopAbs_FACE)
-    while explorer.More():
-        face = TopoDS.Face(explorer.Current())
-        surface = BRepAdaptor_Surface(face)
-        if surface.GetType() == GeomAbs_Plane:
-            plane = surface.Plane()
-            props = GProp_GProps()
-            BRepGProp.SurfaceProperties_s(face, props)
-            normal, origin = plane.Axis().Direction(), plane.Location()
-            planes.append((np.abs([normal.X(), normal.Y(), normal.Z()]),
-                           np.array([origin.X(), origin.Y(), origin.Z()]), props.Mass()))
-        explorer.Next()
-    assert len(planes) == 2
-    area = superellipse_area(0.05, 0.04, 2.5)
-    by_normal = sorted(planes, key=lambda plane: -plane[0][1])  # y = 0 first, then x = 0
-    for axis, (normal, origin, face_area) in zip((1, 0), by_normal, strict=True):
-        assert np.allclose(normal, np.eye(3)[axis], atol=1e-9)
-        assert abs(origin[axis]) < 1e-9
-        assert face_area == pytest.approx(area, rel=1e-2)
-
-
 def _planar_faces(shape) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """(unit normal, a point of the plane, area) of each planar face of a shape."""
     from OCP.BRepAdaptor import BRepAdaptor_Surface
@@ -620,6 +575,31 @@ def _planar_faces(shape) -> list[tuple[np.ndarray, np.ndarray, float]]:
                            np.array([origin.X(), origin.Y(), origin.Z()]), props.Mass()))
         explorer.Next()
     return planes
+
+
+@needs_occ
+def test_a_loft_through_slices_ends_in_flat_caps_in_the_caps_planes() -> None:
+    # The same bend sliced along its chord (the planes cut both caps at 45 degrees) with
+    # its end stubs, and its rings moved onto the caps' planes: each cap is one flat face
+    # in its plane with the profile's area (within 1 %: the rim is the loft's section,
+    # through 48 rays cut at 45 degrees; 0.4 % here), and the volume is the closed
+    # form's within 3e-4 (without the stubs the rims come out rounded: 0.12 % short).
+    from sweepedit.io.step_export import _sliced_solid
+
+    bend = SweepPrimitive([[0.3, 0.0, 0.0], [0.3, 0.3, 0.0], [0.0, 0.3, 0.0]], a=0.05,
+                          b=0.04, degree=2.5, name="bend")
+    truth = closed_form_volume(bend)
+    solid = _sliced_solid(bend, None, "bend", truth, 0.01)
+    assert solid is not None
+    assert solid_volume(solid, 1e-7) == pytest.approx(truth, rel=3e-4)
+    planes = [(np.abs(normal), origin, area) for normal, origin, area in _planar_faces(solid)]
+    assert len(planes) == 2
+    area = superellipse_area(0.05, 0.04, 2.5)
+    by_normal = sorted(planes, key=lambda plane: -plane[0][1])  # y = 0 first, then x = 0
+    for axis, (normal, origin, face_area) in zip((1, 0), by_normal, strict=True):
+        assert np.allclose(normal, np.eye(3)[axis], atol=1e-9)
+        assert abs(origin[axis]) < 1e-9
+        assert face_area == pytest.approx(area, rel=1e-2)
 
 
 @needs_occ
