@@ -36,9 +36,10 @@ from __future__ import annotations
 import math
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
+from itertools import islice
 from pathlib import Path
 from typing import Any, Literal
 
@@ -604,7 +605,7 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
     surface = surface_samples(primitive)
     stubs = end_stubs(primitive, surface)
     extended = np.concatenate([surface, *(stub.surface() for stub in stubs)])
-    for planes, with_stubs in _slicing_attempts(list(slicing_families(primitive, surface)),
+    for planes, with_stubs in _slicing_attempts(slicing_families(primitive, surface),
                                                 bool(stubs)):
         ends, samples = (stubs, extended) if with_stubs else ([], surface)
         for sliced in ring_candidates(primitive, planes, samples, ends):
@@ -629,20 +630,26 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
     return None
 
 
-def _slicing_attempts(families: list[SlicingPlanes], stubs: bool
-                      ) -> list[tuple[SlicingPlanes, bool]]:
+def _slicing_attempts(families: Iterator[SlicingPlanes], stubs: bool
+                      ) -> Iterator[tuple[SlicingPlanes, bool]]:
     """The order in which _sliced_solid tries the families of planes, each with the end
     stubs (True) and without: with stubs over the first STUB_FAMILIES families before
     any without, then family by family. A loft without stubs rounds the rims of its
     caps off: taken as soon as the first family's stubs failed, it put camel.json's 1st
     primitive 101 of 4705 64^3 cells wrong, where the fifth family's with stubs put 16.
     Of the benchmark's 120 folding primitives, 3 move to stubs and 11 others take
-    0.4-0.8 s longer to end with the same loft (BENCHMARKS.md, STEP export)."""
+    0.4-0.8 s longer to end with the same loft (BENCHMARKS.md, STEP export). Lazy: the
+    later families (and the caps' pencil) are made only if they are reached."""
     if not stubs:
-        return [(planes, False) for planes in families]
-    first = [(planes, True) for planes in families[:STUB_FAMILIES]]
-    return first + [(planes, with_stubs) for i, planes in enumerate(families)
-                    for with_stubs in (True, False) if not (with_stubs and i < STUB_FAMILIES)]
+        for planes in families:
+            yield planes, False
+        return
+    first = list(islice(families, STUB_FAMILIES))
+    yield from ((planes, True) for planes in first)
+    yield from ((planes, False) for planes in first)
+    for planes in families:
+        yield planes, True
+        yield planes, False
 
 
 def fold_volume(primitive: SweepPrimitive, replicates: int = FOLD_REPLICATES,
