@@ -6,11 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sweepedit.geometry.inside import inside_union
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.slices import (
     GRID,
     INSET,
+    MAX_RING_POINTS,
     RAYS,
+    REFINE_TOLERANCE,
     SLICES,
     STUB_AXIS_SHARE,
     STUB_LENGTH,
@@ -24,8 +27,11 @@ from sweepedit.geometry.slices import (
     _refined,
     caps_pencil,
     end_stubs,
+    quarter_turns,
+    ring_candidates,
     rings_on_caps,
     slice_rings,
+    slicing_families,
     slicing_frame,
     surface_samples,
 )
@@ -220,3 +226,74 @@ def test_one_region_each_centroids_and_deepest_points_of_known_slices() -> None:
     assert np.abs(_centroids(occupied, g1, g2) - [0.05, -0.02]).max() < 1e-3
     cell = g1[0, 1] - g1[0, 0]
     assert np.abs(_deepest(occupied, g1, g2) - [0.05, -0.02]).max() <= cell
+
+
+def test_quarter_turns_are_the_patches_seams_among_rays_added_anywhere() -> None:
+    angles = np.linspace(0.0, 2.0 * np.pi, RAYS, endpoint=False)
+    assert quarter_turns(angles) == [(0, 12), (12, 24), (24, 36), (36, 48)]
+    # Rays added halfway after rays 3, 11 and 47: each seam moves by the rays before it.
+    added = np.sort(np.concatenate([angles, (angles[[3, 11, 47]] + np.pi / RAYS)]))
+    seams = quarter_turns(added)
+    assert seams == [(0, 14), (14, 26), (26, 38), (38, 51)]
+    assert np.allclose(added[[first for first, _ in seams]], np.arange(4) * np.pi / 2.0)
+
+
+# elephant.json's 6th primitive of a K = 8 fit: it folds sharply just after t = 0 (its
+# first control points almost double back), and a loft through evenly spaced slices and
+# rays rounds off the crease (46 of its 64^3 cells wrong; 16 refined).
+CREASED = SweepPrimitive([[0.14042526483535767, 0.0216330885887146, 0.012282729148864746],
+                          [0.10584115982055664, 0.0033708810806274414, 0.0016536116600036621],
+                          [0.33777862787246704, 0.20355159044265747, 0.21037817001342773]],
+                         a=0.10559287667274475, b=0.15146180987358093,
+                         degree=1.8577744960784912,
+                         scaling=(-0.49931469559669495, -0.4349518120288849))
+
+
+def _loft_off_boundary(primitive: SweepPrimitive, sliced, distance: float) -> int:
+    """How many points of the loft through `sliced` (its B-spline patches, as STEP export
+    builds them, on a 200 x 96 grid of their parameters, the ends left out) lie further
+    than `distance` from the solid's boundary along the loft's own normal, by the exact
+    inside test on both sides."""
+    from scipy.interpolate import BSpline
+
+    from sweepedit.io.step_export import _ring_patches
+
+    t_knots, patches = _ring_patches(sliced.rings, sliced.u, sliced.angles)
+    t = np.linspace(t_knots[0], t_knots[-1], 200)
+    sheets = []
+    for v_knots, poles in patches:
+        across = BSpline(t_knots, poles, 3)(t)  # (200, Nv, 3)
+        v = np.linspace(v_knots[0], v_knots[-1], 24)
+        sheets.append(np.stack([BSpline(v_knots, row, 3)(v) for row in across]))
+    grid = np.concatenate(sheets, axis=1)  # (200, 96, 3)
+    normal = np.cross(np.gradient(grid, axis=0), np.gradient(grid, axis=1))
+    normal /= np.linalg.norm(normal, axis=2, keepdims=True)
+    outward = np.sign(np.sum(normal * (grid - grid.mean(axis=1, keepdims=True)), axis=2))
+    normal *= outward[..., None]
+    points, normal = grid[1:-1].reshape(-1, 3), normal[1:-1].reshape(-1, 3)
+    missed = ~inside_union(points - distance * normal, [primitive])
+    excess = inside_union(points + distance * normal, [primitive])
+    return int(np.count_nonzero(missed | excess))
+
+
+def test_rays_and_slices_added_where_the_loft_strays_bring_it_onto_the_crease() -> None:
+    surface = surface_samples(CREASED)
+    size = float(np.linalg.norm(np.ptp(surface, axis=0)))
+    planes = next(family for family in slicing_families(CREASED, surface)
+                  if next(ring_candidates(CREASED, family, surface), None) is not None)
+    # The first centre's refined rings come first, then its plain ones.
+    refined, base = list(ring_candidates(CREASED, planes, surface))[:2]
+    assert base.rings.shape == (SLICES, RAYS, 3)
+    S, P = refined.rings.shape[:2]
+    assert S > SLICES and P > RAYS and S * P <= MAX_RING_POINTS
+    # The plain rings are among the refined ones, which stay in order.
+    assert np.all(np.diff(refined.u) > 0) and np.all(np.diff(refined.angles) > 0)
+    assert np.isin(base.u, refined.u).all() and np.isin(base.angles, refined.angles).all()
+    kept = np.ix_(np.isin(refined.u, base.u), np.isin(refined.angles, base.angles))
+    assert np.array_equal(refined.rings[kept], base.rings)
+    # The loft's surface, sampled between its rings and checked by the exact inside
+    # test along its own normals, strays from the boundary less than half as often.
+    distance = 2.0 * REFINE_TOLERANCE * size
+    plain, finer = (_loft_off_boundary(CREASED, c, distance) for c in (base, refined))
+    assert plain > 100
+    assert 2 * finer < plain

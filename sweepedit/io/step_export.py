@@ -57,6 +57,7 @@ from sweepedit.geometry.model import (
 from sweepedit.geometry.slices import (
     SlicingPlanes,
     end_stubs,
+    quarter_turns,
     ring_candidates,
     rings_on_caps,
     slicing_families,
@@ -530,14 +531,14 @@ def _sections_meet(primitive: SweepPrimitive, samples: int = 512) -> bool:
 
 def _ring_patches(rings: np.ndarray, t: np.ndarray, angles: np.ndarray
                   ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
-    """Four B-spline patches interpolating rings (S, P, 3) at stations t (S,), split into
-    quarters at indices 0, P/4, P/2, 3P/4 (a profile's tips, or a slice's rays along the
+    """Four B-spline patches interpolating rings (S, P, 3) at stations t (S,), split at
+    the quarter turns of angles (P,) (slices.quarter_turns: a slice's rays along the
     frame's axes) -> t knots, [(θ knots, poles)]."""
     P = rings.shape[1]
     patches = []
     t_spline = None
-    for k in range(4):
-        idx = np.arange(k * P // 4, (k + 1) * P // 4 + 1) % P
+    for first, last in quarter_turns(angles):
+        idx = np.arange(first, last + 1) % P
         theta = np.unwrap(angles[idx])
         across = make_interp_spline(theta, rings[:, idx, :], k=3, axis=1)
         poles = np.moveaxis(np.asarray(across.c), 0, 1)  # (S, Nk, 3)
