@@ -63,9 +63,11 @@ BISECTIONS = 18
 # How far (in the solid's size) a loft may stray from the boundary halfway between two
 # rays or two slices before an exact ray or slice is added there (_refined_rings).
 REFINE_TOLERANCE = 5e-3
-# The most ring points a refined loft may have (SLICES x RAYS = 1440 before): its STEP
-# text takes about 110 bytes per point, and a primitive's file must stay under 250 kB.
-MAX_RING_POINTS = 2100
+# The most ring points a refined loft may have (SLICES x RAYS = 1440 unrefined): a
+# primitive's STEP text takes about 110 bytes per point, and more in a union, whose fuse
+# splits faces (glyph_8.json's: 228 kB per primitive unrefined, 248 kB at 1700 points,
+# 285 kB at 2100; the target is 250 kB).
+MAX_RING_POINTS = 1700
 # Steps along a ray on a slice's occupancy grid, in the cell's shorter side, and how
 # far past its first crossing (in cell diagonals) the grid's boundary may waver.
 MARCH_STEP = 0.5
@@ -637,10 +639,52 @@ def _refined_rings(primitive: SweepPrimitive, planes: SlicingPlanes, sliced: Sli
                    stubs: Sequence[EndStub] = ()) -> SliceRings:
     """`sliced` with exact rays, then exact slices, added where a loft through it strays
     from the boundary (_with_mid_rays, _with_mid_slices); `sliced` itself where it strays
-    nowhere. On the 64^3 grid, elephant.json's 5th and 6th folding primitives went from
+    nowhere, or where the refined loft strays at no smaller share of its own halfway
+    points (_straying_share: uneven spacing can make a cubic overshoot next to a ring
+    added). On the 64^3 grid, elephant.json's 5th and 6th folding primitives went from
     23 and 46 wrong cells to 5 and 14 (BENCHMARKS.md, STEP export)."""
     with_rays = _with_mid_rays(primitive, planes, sliced, s, centres, reach, stubs)
-    return _with_mid_slices(primitive, planes, with_rays, s, centres, reach, stubs)
+    finer = _with_mid_slices(primitive, planes, with_rays, s, centres, reach, stubs)
+    if finer is sliced:
+        return sliced
+    tolerance = REFINE_TOLERANCE * _size(sliced.rings)
+    before, after = (_straying_share(primitive, planes, rings, s, centres, tolerance, stubs)
+                     for rings in (sliced, finer))
+    return finer if after < before else sliced
+
+
+def _halfway_across(sliced: SliceRings) -> np.ndarray:
+    """The loft through `sliced` (rings (S, P, 3)) halfway after each ray, in every
+    slice, by its cubics across the rays of each quarter turn -> (S, P, 3)."""
+    _, rings, angles = sliced
+    S, P = rings.shape[:2]
+    ends = np.append(angles, 2.0 * np.pi)
+    halfway = np.empty((S, P, 3))
+    for first, last in quarter_turns(angles):
+        theta = ends[first:last + 1]
+        across = make_interp_spline(theta, rings[:, np.arange(first, last + 1) % P], k=3,
+                                    axis=1)
+        halfway[:, first:last] = across(0.5 * (theta[:-1] + theta[1:]))
+    return halfway
+
+
+def _halfway_along(sliced: SliceRings) -> np.ndarray:
+    """The loft through `sliced` (rings (S, P, 3)) halfway between each two slices, on
+    every ray, by its cubics along the slices -> (S - 1, P, 3)."""
+    u = sliced.u
+    return make_interp_spline(u, sliced.rings, k=3, axis=0)(0.5 * (u[:-1] + u[1:]))
+
+
+def _straying_share(primitive: SweepPrimitive, planes: SlicingPlanes, sliced: SliceRings,
+                    s: np.ndarray, centres: np.ndarray, tolerance: float,
+                    stubs: Sequence[EndStub] = ()) -> float:
+    """The share of the loft's points halfway between its rays and between its slices
+    that lie further than `tolerance` from the boundary (_strays; the rays from the
+    centres (S, 2) of the slices at s (S,))."""
+    points = np.concatenate([_halfway_across(sliced).reshape(-1, 3),
+                             _halfway_along(sliced).reshape(-1, 3)])
+    rays = _rays_through(planes, points, s, centres)
+    return float(np.mean(_strays(primitive, planes, rays, tolerance, stubs)))
 
 
 def _with_mid_rays(primitive: SweepPrimitive, planes: SlicingPlanes, sliced: SliceRings,
@@ -658,12 +702,7 @@ def _with_mid_rays(primitive: SweepPrimitive, planes: SlicingPlanes, sliced: Sli
     S, P = rings.shape[:2]
     room = (MAX_RING_POINTS // S - P) // 2
     ends = np.append(angles, 2.0 * np.pi)
-    lofted = np.empty((S, P, 3))  # the loft halfway after each ray
-    for first, last in quarter_turns(angles):
-        theta = ends[first:last + 1]
-        across = make_interp_spline(theta, rings[:, np.arange(first, last + 1) % P], k=3,
-                                    axis=1)
-        lofted[:, first:last] = across(0.5 * (theta[:-1] + theta[1:]))
+    lofted = _halfway_across(sliced)
     rays = _rays_through(planes, lofted.reshape(-1, 3), s, centres)
     tolerance = REFINE_TOLERANCE * _size(rings)
     candidates = np.flatnonzero(
@@ -720,7 +759,7 @@ def _with_mid_slices(primitive: SweepPrimitive, planes: SlicingPlanes, sliced: S
     S, P = rings.shape[:2]
     room = MAX_RING_POINTS // P - S
     mid_u = 0.5 * (u[:-1] + u[1:])
-    lofted = make_interp_spline(u, rings, k=3, axis=0)(mid_u)  # (S - 1, P, 3)
+    lofted = _halfway_along(sliced)
     rays = _rays_through(planes, lofted.reshape(-1, 3), s, centres)
     tolerance = REFINE_TOLERANCE * _size(rings)
     candidates = np.flatnonzero(
