@@ -25,6 +25,7 @@ from sweepedit.geometry.slices import (
     _one_region_each,
     _ray_radii,
     _refined,
+    _straying_share,
     caps_pencil,
     end_stubs,
     quarter_turns,
@@ -297,3 +298,25 @@ def test_rays_and_slices_added_where_the_loft_strays_bring_it_onto_the_crease() 
     plain, finer = (_loft_off_boundary(CREASED, c, distance) for c in (base, refined))
     assert plain > 100
     assert 2 * finer < plain
+
+
+def test_the_straying_share_counts_the_loft_points_off_the_boundary_by_more_than_asked() -> None:
+    planes = ParallelPlanes(np.array([1.0, 0.0, 0.0]))
+    sliced = slice_rings(ROD, planes)
+    assert sliced is not None and sliced.rings.shape == (SLICES, RAYS, 3)
+    s = sliced.rings[:, 0, 0]  # the planes x = s, the rod's axis through (0, 0) in each
+    centres = np.zeros((SLICES, 2))
+
+    def share(scale: float, tolerance: float) -> float:
+        # The rings pushed out radially: the loft's points between them lie about
+        # 0.1 (scale - 1) off the rod's side.
+        rings = sliced.rings * np.array([1.0, scale, scale])
+        return _straying_share(ROD, planes, sliced._replace(rings=rings), s, centres,
+                               tolerance)
+
+    assert share(1.0, 1e-4) == 0.0
+    # 0.005 outside the side, or inside it: every point strays by more than 0.004, none
+    # by more than 0.006.
+    for scale in (1.05, 0.95):
+        assert share(scale, 4e-3) == 1.0
+        assert share(scale, 6e-3) == 0.0
