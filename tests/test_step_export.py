@@ -589,7 +589,7 @@ def test_a_loft_through_slices_ends_in_flat_caps_in_the_caps_planes() -> None:
     bend = SweepPrimitive([[0.3, 0.0, 0.0], [0.3, 0.3, 0.0], [0.0, 0.3, 0.0]], a=0.05,
                           b=0.04, degree=2.5, name="bend")
     truth = closed_form_volume(bend)
-    solid = _sliced_solid(bend, None, "bend", truth, 0.01)
+    solid = _sliced_solid(bend, None, "bend", lambda: (truth, 0.01))
     assert solid is not None
     assert solid_volume(solid, 1e-7) == pytest.approx(truth, rel=3e-4)
     planes = [(np.abs(normal), origin, area) for normal, origin, area in _planar_faces(solid)]

@@ -37,6 +37,7 @@ import math
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 from itertools import islice
@@ -565,14 +566,22 @@ def _sections_union_solid(primitive: SweepPrimitive, normalization: Normalizatio
     check (BRepAlgoAPI_Check) failed 19 of the 48 written, which broke unions; slices by
     parallel planes cannot cross, and build as many (BENCHMARKS.md, STEP export)."""
     scale3 = (1.0 if normalization is None else normalization.scale) ** 3
-    estimate, error = fold_volume(primitive)
-    tolerance = FOLD_VOLUME_TOLERANCE - 2.0 * error / estimate
-    if tolerance <= 0.0:
-        raise StepExportError(f"{what}: its sections cross, and its volume cannot be "
-                              "estimated precisely enough to check a solid of it; export a "
-                              "mesh")
-    solid = _sliced_solid(primitive, normalization, what, estimate * scale3, tolerance,
-                          alternative)
+    # The estimate is needed only once the first rings are found: made meanwhile on the
+    # other core (numpy lets go of the interpreter in the inside test's array work).
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        estimated = pool.submit(fold_volume, primitive)
+
+        def expected() -> tuple[float, float]:
+            estimate, error = estimated.result()
+            tolerance = FOLD_VOLUME_TOLERANCE - 2.0 * error / estimate
+            if tolerance <= 0.0:
+                raise StepExportError(
+                    f"{what}: its sections cross, and its volume cannot be estimated "
+                    "precisely enough to check a solid of it; export a mesh")
+            return estimate * scale3, tolerance
+
+        solid = _sliced_solid(primitive, normalization, what, expected, alternative)
+        expected()  # its error first, where no slicing gave rings
     if solid is not None:
         return solid
     if alternative:
@@ -588,10 +597,13 @@ def _sections_union_solid(primitive: SweepPrimitive, normalization: Normalizatio
 
 
 def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None,
-                  what: str, volume: float, tolerance: float, skip: int = 0) -> Any | None:
+                  what: str, expected: Callable[[], tuple[float, float]],
+                  skip: int = 0) -> Any | None:
     """The loft through slices of the exact solid (geometry/slices.py), by the first
     family of planes that cuts every slice in one star-shaped region and whose solid is
-    valid, within `tolerance` of `volume` and, as read back from its STEP text
+    valid, within the tolerance of the volume that expected() gives (-> volume,
+    tolerance; asked for only once there are rings to loft) and, as read back from its
+    STEP text
     (_as_written), does not cross itself (crosses_itself; the slower check last), after
     the first `skip` such solids; None if there is none. It is returned as read back, so
     a file need not check it for crossing again. Its surfaces interpolate the true
@@ -615,6 +627,7 @@ def _sliced_solid(primitive: SweepPrimitive, normalization: Normalization | None
                 if sliced is None:
                     break
             t_knots, patches = _ring_patches(sliced.rings, sliced.u, sliced.angles)
+            volume, tolerance = expected()  # its error is the primitive's, not the loft's
             try:
                 solid = _sewn_solid(primitive, SideSurface(t_knots, patches),
                                     normalization, what)
