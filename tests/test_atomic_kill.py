@@ -3,8 +3,10 @@
 A child process writes a large parameter file (sweepedit.io.params.write_abstraction, 2000
 primitives, ~1 MB) and a large mesh (sweepedit.io.mesh_export.write_mesh, 20k faces, binary
 PLY, ~1 MB) over and over, alternating between two known contents; it is killed with
-SIGKILL many times: at random moments, and every other time while a temporary file is
-being synced (the moment the test is about, made certain, not left to timing). After
+SIGKILL many times: every other time while a temporary file is being synced (the moment
+the test is about, made certain, not left to timing), else at a random moment from the
+start of its writes or from the end of its first complete write of both files (so that
+each file is seen in both versions, whatever the machine's speed). After
 every kill each file must be exactly one of its two known contents (the old complete file
 or the new one), and nothing but hidden temporary files of killed writers may be left
 beside them; the next write removes those.
@@ -47,29 +49,42 @@ def _mesh(seed: int) -> TriangleMesh:
     return TriangleMesh(vertices, np.asarray(sphere.faces), np.asarray(sphere.vertex_normals))
 
 
-def _slow_disk(syncing: int | None = None) -> None:
+def _slow_disk(events: int | None = None) -> None:
     """From now on in this process, each fsync takes 40 ms more (a slow disk), so that a
     good share of the random kills land while a temporary file is open -- the moment the
-    test is about -- and not only in the serialisation before it. With `syncing`, a byte
-    is written to that pipe as each regular file (a temporary file, before its rename)
-    has been synced."""
-    fsync = os.fsync
+    test is about -- and not only in the serialisation before it. With `events`, b"s" is
+    written to that pipe as each regular file (a temporary file, before its rename) has
+    been synced, and b"r" as each temporary file has been moved over its target."""
+    fsync, replace = os.fsync, os.replace
 
     def slow_fsync(fd: int) -> None:
         fsync(fd)
-        if syncing is not None and stat.S_ISREG(os.fstat(fd).st_mode):
-            os.write(syncing, b"s")
+        if events is not None and stat.S_ISREG(os.fstat(fd).st_mode):
+            os.write(events, b"s")
         time.sleep(0.04)
 
-    os.fsync = slow_fsync
+    def told_replace(source, target) -> None:
+        replace(source, target)
+        if events is not None:
+            os.write(events, b"r")
+
+    os.fsync, os.replace = slow_fsync, told_replace
+
+
+def _await(events: int, event: bytes, count: int = 1) -> None:
+    """Read the child's events until `count` of `event` have come."""
+    while count:
+        got = os.read(events, 1)
+        assert got, "the writing child died"
+        count -= got == event
 
 
 def _write_forever(params: Path, mesh: Path, contents: list[tuple[Abstraction, TriangleMesh]],
                    first: int, started: int) -> None:
     """The child: say so on the pipe `started`, then write version `first`, then the
     other, and so on until killed (it never returns); a byte on `started` too whenever a
-    temporary file has been synced."""
-    _slow_disk(syncing=started)
+    temporary file has been synced or renamed (see _slow_disk)."""
+    _slow_disk(events=started)
     try:
         os.write(started, b"1")
         for i in range(10**9):
@@ -84,7 +99,7 @@ def test_files_survive_sigkill_whole(tmp_path: Path):
     params, mesh = tmp_path / "doc.json", tmp_path / "doc.ply"
     contents = [(_abstraction(0), _mesh(0)), (_abstraction(1), _mesh(1))]
     known: dict[Path, list[bytes]] = {params: [], mesh: []}
-    fsync = os.fsync
+    fsync, replace = os.fsync, os.replace
     _slow_disk()  # as in the writer, so that `cycle` is its cycle
     try:
         start = time.perf_counter()
@@ -95,7 +110,7 @@ def test_files_survive_sigkill_whole(tmp_path: Path):
             known[mesh].append(mesh.read_bytes())
         cycle = (time.perf_counter() - start) / 2  # one write of both files
     finally:
-        os.fsync = fsync
+        os.fsync, os.replace = fsync, replace
     assert known[params][0] != known[params][1] and known[mesh][0] != known[mesh][1]
     assert len(known[params][0]) > 500_000 and len(known[mesh][0]) > 500_000
     assert len(read_abstraction(params).primitives) == PRIMITIVES
@@ -112,12 +127,15 @@ def test_files_survive_sigkill_whole(tmp_path: Path):
             _write_forever(params, mesh, contents, 1 - on_disk, ready)
         # The kill's moment counts from the child's first write, not from the fork,
         # which takes long in a big process (the whole suite's).
-        os.read(started, 1)
+        _await(started, b"1")
         if k % 2:  # while a temporary file is open: just after its sync, before its rename
-            os.read(started, 1)
+            _await(started, b"s")
             time.sleep(rng.uniform(0.0, 0.02))
-        else:
+        elif k % 4:  # anywhere in the first writes
             time.sleep(rng.uniform(0.0, 1.5 * cycle))
+        else:  # once both files hold the child's first version: in its second write
+            _await(started, b"r", 2)
+            time.sleep(rng.uniform(0.0, 0.5 * cycle))
         os.kill(pid, signal.SIGKILL)
         os.close(started)
         os.close(ready)
