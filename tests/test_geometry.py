@@ -218,6 +218,23 @@ def test_exact_inside_on_a_straight_box_sweep() -> None:
     assert not inside_primitive(outside, p).any()
 
 
+def test_exact_inside_follows_a_primitive_edited_in_place() -> None:
+    # The inside test keeps tables of the primitives it has seen (by their values): an
+    # edit in place, as the app makes, must be seen at once, and undone, give the same
+    # answer as before.
+    p = SweepPrimitive([[0, 0, -0.3], [0, 0, 0], [0, 0, 0.3]], a=0.2, b=0.1, degree=5.0,
+                       scaling=())
+    point = np.array([[0.0, 0.0, 0.35]])  # past the end cap at z = 0.3
+    assert not inside_primitive(point, p).any()
+    p.control_points[2, 2] = 0.4
+    assert inside_primitive(point, p).all()
+    p.a = 0.01
+    assert not inside_primitive(np.array([[0.0, 0.15, 0.0]]), p).any()
+    p.control_points[2, 2], p.a = 0.3, 0.2
+    assert not inside_primitive(point, p).any()
+    assert inside_primitive(np.array([[0.0, 0.15, 0.0]]), p).all()
+
+
 def test_inside_union_is_the_or_of_primitives() -> None:
     rng = np.random.default_rng(3)
     prims = [_random_unfolded(rng) for _ in range(3)]

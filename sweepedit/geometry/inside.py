@@ -9,6 +9,8 @@ refined by regula falsi on the exact curve, and every root is tested.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 
@@ -59,54 +61,101 @@ def inside_primitive(points: np.ndarray, primitive: SweepPrimitive,
     return _inside_primitive(points, columns, primitive, t_samples)
 
 
-def _inside_primitive(points: np.ndarray, columns: np.ndarray, primitive: SweepPrimitive,
-                      t_samples: int, todo: np.ndarray | None = None) -> np.ndarray:
-    """inside_primitive of points (N, 3) with their columns (3, N); only where todo (N,)
-    bool is True, if given (False elsewhere)."""
-    cps, profile, scaling = primitive.batch_arrays()
+class _AxisTable(NamedTuple):
+    """What the inside test needs of one primitive at its axis samples, made once per
+    primitive (_axis_table): the slicer of STEP export asks about a few thousand points
+    at a time, thousands of times, and making these took a third of each call."""
+
+    cps: np.ndarray  # (1, n, 3)
+    profile: np.ndarray  # (1, 3)
+    scaling: np.ndarray  # (1, k)
+    t: np.ndarray  # (T,) the axis samples
+    centres: np.ndarray  # (T, 3)
+    tangents: np.ndarray  # (T, 3)
+    offsets: np.ndarray  # (T,) s(t).T(t)
+    lo: np.ndarray  # (3,) a box that holds the solid
+    hi: np.ndarray  # (3,)
+    coarse: np.ndarray  # (C, 3) every _COARSE-th axis sample
+    bound: float  # how far from a coarse sample a point inside can be
+    reach2: np.ndarray  # (T-1,) squared reach of each interval of samples
+    plane_mat: np.ndarray  # (4, T) float32: [p, 1] @ plane_mat is h at every sample
+
+
+class _Arrays:
+    """A primitive's arrays as a cache key: equal when their values are."""
+
+    __slots__ = ("_hash", "_key", "arrays")
+
+    def __init__(self, *arrays: np.ndarray) -> None:
+        self.arrays = tuple(np.array(a, dtype=np.float64) for a in arrays)  # copies
+        self._key = tuple((a.shape, a.tobytes()) for a in self.arrays)
+        self._hash = hash(self._key)
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _Arrays) and self._key == other._key
+
+
+def _axis_table(primitive: SweepPrimitive, t_samples: int) -> _AxisTable:
+    return _make_axis_table(_Arrays(*primitive.batch_arrays()), t_samples)
+
+
+@lru_cache(maxsize=64)
+def _make_axis_table(arrays: _Arrays, t_samples: int) -> _AxisTable:
+    cps, profile, scaling = arrays.arrays
     t = np.linspace(0.0, 1.0, t_samples)
-    fr = axis_frames(cps, t)
-    centres, tangents = fr.points[0], fr.T[0]  # (T, 3)
+    centres, tangents = (a[0] for a in axis_points_tangents(cps, t))  # (T, 3)
     lo, hi = _bounding_box(cps, profile, scaling, t, centres)
-    result = np.zeros(len(points), dtype=bool)
-    box = np.ones(len(points), dtype=bool) if todo is None else todo.copy()
-    for axis in range(3):
-        box &= columns[axis] >= lo[axis]
-        box &= columns[axis] <= hi[axis]
-    in_box = np.flatnonzero(box)
     # Only points within the largest profile radius (plus the sample gap) of the axis
-    # can be inside: this cuts the box down to a tube before the dense work below. The
-    # tube is tested against every COARSE-th axis sample, widened by the most any sample
-    # lies from its nearest coarse one (half the polyline between two coarse samples):
-    # one small matmul, several times cheaper than a k-d tree of all samples.
+    # can be inside: this cuts the box down to a tube before the dense work. The tube is
+    # tested against every COARSE-th axis sample, widened by the most any sample lies
+    # from its nearest coarse one (half the polyline between two coarse samples): one
+    # small matmul, several times cheaper than a k-d tree of all samples.
     gap = np.linalg.norm(np.diff(centres, axis=0), axis=1)  # (T-1,)
     reach = scaling_factor(scaling, t)[0] * np.hypot(profile[0, 0], profile[0, 1])
     coarse_at = np.unique(np.append(np.arange(0, t_samples, _COARSE), t_samples - 1))
     arc = np.concatenate([[0.0], np.cumsum(gap)])
     widen = float(np.max(np.diff(arc[coarse_at]))) / 2.0
-    bound = float(reach.max() + gap.max()) + widen + 1e-9
-    coarse = centres[coarse_at]  # (C, 3)
+    offsets = np.einsum("ij,ij->i", centres, tangents)
+    # h at every axis sample comes out of one float32 matmul, with homogeneous
+    # coordinates: [p, 1] @ [T; -s.T]. float32 only brackets the roots; they are refined
+    # in float64. A plane crossing at t can only be inside if p is within reach of s(t):
+    # the largest profile radius there plus the gap to the next sample.
+    return _AxisTable(
+        cps, profile, scaling, t, centres, tangents, offsets, lo, hi, centres[coarse_at],
+        float(reach.max() + gap.max()) + widen + 1e-9,
+        (np.maximum(reach[:-1], reach[1:]) + gap) ** 2,
+        np.vstack([tangents.T, -offsets[None, :]]).astype(np.float32))
+
+
+def _inside_primitive(points: np.ndarray, columns: np.ndarray, primitive: SweepPrimitive,
+                      t_samples: int, todo: np.ndarray | None = None) -> np.ndarray:
+    """inside_primitive of points (N, 3) with their columns (3, N); only where todo (N,)
+    bool is True, if given (False elsewhere)."""
+    table = _axis_table(primitive, t_samples)
+    result = np.zeros(len(points), dtype=bool)
+    box = np.ones(len(points), dtype=bool) if todo is None else todo.copy()
+    for axis in range(3):
+        box &= columns[axis] >= table.lo[axis]
+        box &= columns[axis] <= table.hi[axis]
+    in_box = np.flatnonzero(box)
+    coarse = table.coarse  # (C, 3)
     p_box = points[in_box]
     d2 = ((p_box * p_box).sum(axis=1)[:, None] - 2.0 * (p_box @ coarse.T)
           + (coarse * coarse).sum(axis=1)[None, :])
-    candidates = in_box[d2.min(axis=1) <= bound * bound]
-    offsets = np.einsum("ij,ij->i", centres, tangents)  # s(t).T(t), (T,)
-    # A plane crossing at t can only be inside if p is within reach of s(t): the
-    # largest profile radius there plus the gap to the next sample.
-    reach2 = (np.maximum(reach[:-1], reach[1:]) + gap) ** 2  # (T-1,)
-    # h at every axis sample comes out of one float32 matmul, with homogeneous
-    # coordinates: [p, 1] @ [T; -s.T]. float32 only brackets the roots; they are refined
-    # in float64 below. The reach test runs on the (few) crossings only.
-    plane_mat = np.vstack([tangents.T, -offsets[None, :]]).astype(np.float32)  # (4, T)
+    candidates = in_box[d2.min(axis=1) <= table.bound * table.bound]
+    centres, tangents, offsets, t = table.centres, table.tangents, table.offsets, table.t
     for start in range(0, len(candidates), _CHUNK):
         idx = candidates[start:start + _CHUNK]
         p = points[idx]
-        h = np.hstack([p, np.ones((len(idx), 1))]).astype(np.float32) @ plane_mat  # (C, T)
+        h = np.hstack([p, np.ones((len(idx), 1))]).astype(np.float32) @ table.plane_mat
         sign = h >= 0.0
         # One flat index list, split after: several times faster than a 2-D nonzero.
         rows, cols = np.divmod(np.flatnonzero(sign[:, :-1] != sign[:, 1:]), t_samples - 1)
         d = p[rows] - centres[cols]
-        near = np.einsum("ij,ij->i", d, d) <= reach2[cols]
+        near = np.einsum("ij,ij->i", d, d) <= table.reach2[cols]
         rows, cols = rows[near], cols[near]
         if rows.size == 0:
             continue
@@ -114,8 +163,8 @@ def _inside_primitive(points: np.ndarray, columns: np.ndarray, primitive: SweepP
         # h at the bracket's ends in float64, from the samples' table (the curve there).
         h0 = np.einsum("ij,ij->i", pr, tangents[cols]) - offsets[cols]
         h1 = np.einsum("ij,ij->i", pr, tangents[cols + 1]) - offsets[cols + 1]
-        roots = _refine_roots(pr, cps, t[cols], t[cols + 1], h0, h1)
-        hit = _inside_profile_at(pr, cps, profile, scaling, roots)
+        roots = _refine_roots(pr, table.cps, t[cols], t[cols + 1], h0, h1)
+        hit = _inside_profile_at(pr, table.cps, table.profile, table.scaling, roots)
         result[idx[rows[hit]]] = True
     return result
 
