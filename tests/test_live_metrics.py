@@ -79,7 +79,6 @@ def test_folding_primitive_samples_cover_its_solid(box_shape) -> None:
     with the symmetric Chamfer distance to samples of that surface at sampling noise."""
     from scipy.spatial import cKDTree
 
-    from sweepedit.analysis.heatmap import primitive_key
     from sweepedit.analysis.metrics import (
         _SAMPLE_PROFILE_POINTS,
         _SAMPLE_STATIONS,
@@ -90,7 +89,7 @@ def test_folding_primitive_samples_cover_its_solid(box_shape) -> None:
     bend = SweepPrimitive(control_points=[[-0.15, -0.05, 0], [0.3, 0.0, 0], [-0.15, 0.05, 0]],
                           a=0.12, b=0.09, degree=2.5)
     live = LiveMetrics(box_shape, n_samples=20000)
-    samples = live._sample(primitive_key(bend), bend)
+    samples = live._sample(bend.geometry_key(), bend)
     mesh = solid_mesh(bend, _SAMPLE_STATIONS, _SAMPLE_PROFILE_POINTS)
     tri = mesh.vertices[mesh.faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),

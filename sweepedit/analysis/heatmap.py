@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from sweepedit.geometry.inside import T_SAMPLES, inside_primitive
 from sweepedit.geometry.mesher import sweep_meshes_batch
-from sweepedit.geometry.model import SweepPrimitive, folds_onto_itself
+from sweepedit.geometry.model import GeometryKey, SweepPrimitive, folds_onto_itself
 from sweepedit.geometry.solid import solid_mesh
 
 # Sampling of each primitive's surface: rings along the axis, points per ring, and rings
@@ -50,7 +50,7 @@ CAP_RINGS = 8
 # Samples examined per vertex (inside a convex edge the nearest can be on the far face).
 NEAREST = 4
 
-_Key = tuple
+_Key = GeometryKey
 
 
 @dataclass(frozen=True)
@@ -107,13 +107,6 @@ class HeatMap:
         """The largest depth of a buried vertex (0 if none)."""
         buried = self.distance[self.inside]
         return float(-buried.min()) if buried.size else 0.0
-
-
-def primitive_key(primitive: SweepPrimitive) -> _Key:
-    """What a primitive's solid depends on (names, colours and flags do not count)."""
-    return (primitive.control_points.tobytes(), primitive.control_points.shape,
-            float(primitive.a), float(primitive.b), float(primitive.degree),
-            tuple(float(s) for s in primitive.scaling))
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -221,8 +214,8 @@ class HeatMapper:
         abstraction, as the metrics are). Without primitives every vertex is missed by
         an infinite distance."""
         n = len(self.vertices)
-        keys = list(dict.fromkeys(primitive_key(p) for p in primitives))
-        prims = {primitive_key(p): p for p in primitives}
+        keys = list(dict.fromkeys(p.geometry_key() for p in primitives))
+        prims = {p.geometry_key(): p for p in primitives}
         for key, prim in prims.items():
             if key not in self._samples:
                 self._samples[key] = boundary_samples(prim)

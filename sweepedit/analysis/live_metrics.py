@@ -25,7 +25,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from sweepedit.analysis.heatmap import primitive_key
 from sweepedit.analysis.metrics import (
     _SAMPLE_PROFILE_POINTS,
     _SAMPLE_STATIONS,
@@ -37,13 +36,13 @@ from sweepedit.analysis.metrics import (
 )
 from sweepedit.geometry.inside import grid_points, inside_primitive
 from sweepedit.geometry.mesher import sweep_mesh
-from sweepedit.geometry.model import SweepPrimitive, folds_onto_itself
+from sweepedit.geometry.model import GeometryKey, SweepPrimitive, folds_onto_itself
 from sweepedit.geometry.solid import solid_pieces
 
 if TYPE_CHECKING:
     from sweepedit.io.shapes import Shape
 
-_Key = tuple
+_Key = GeometryKey
 
 
 # How far a folding primitive's piece samples are moved outward to tell the solid's
@@ -108,7 +107,7 @@ class LiveMetrics:
     def evaluate(self, primitives: Sequence[SweepPrimitive]) -> dict[str, float]:
         """The metrics of `primitives` (hidden ones count: the metric is of the
         abstraction, not of the view)."""
-        keys = [primitive_key(p) for p in primitives]
+        keys = [p.geometry_key() for p in primitives]
         prims = dict(zip(keys, primitives, strict=True))
         covered = np.zeros(len(self.grid), dtype=bool)
         for key, prim in prims.items():

@@ -82,13 +82,13 @@ class _AxisTable(NamedTuple):
 
 
 class _Arrays:
-    """A primitive's arrays as a cache key: equal when their values are."""
+    """A primitive's arrays (copies) as a cache key: equal when its geometry is."""
 
     __slots__ = ("_hash", "_key", "arrays")
 
-    def __init__(self, *arrays: np.ndarray) -> None:
-        self.arrays = tuple(np.array(a, dtype=np.float64) for a in arrays)  # copies
-        self._key = tuple((a.shape, a.tobytes()) for a in self.arrays)
+    def __init__(self, primitive: SweepPrimitive) -> None:
+        self.arrays = tuple(np.array(a, dtype=np.float64) for a in primitive.batch_arrays())
+        self._key = primitive.geometry_key()
         self._hash = hash(self._key)
 
     def __hash__(self) -> int:
@@ -99,7 +99,7 @@ class _Arrays:
 
 
 def _axis_table(primitive: SweepPrimitive, t_samples: int) -> _AxisTable:
-    return _make_axis_table(_Arrays(*primitive.batch_arrays()), t_samples)
+    return _make_axis_table(_Arrays(primitive), t_samples)
 
 
 @lru_cache(maxsize=64)

@@ -59,6 +59,10 @@ def scaling_polynomial_min(scaling: Sequence[float], samples: int = 1025) -> flo
     return float(np.min(f))
 
 
+# A primitive's geometry as a hashable value (SweepPrimitive.geometry_key).
+GeometryKey = tuple
+
+
 @dataclass
 class SweepPrimitive:
     """One sweep solid: a superellipse profile swept along a clamped quadratic B-spline.
@@ -105,6 +109,12 @@ class SweepPrimitive:
         """This primitive as a batch of one for sweep.py's functions: control points
         (1, n, 3), profile (1, 3), scaling (1, k)."""
         return self.control_points[None], self.profile[None], self.scaling_array
+
+    def geometry_key(self) -> GeometryKey:
+        """What this primitive's solid depends on, as a hashable value (names, colours and
+        flags do not count): equal keys mean the same solid."""
+        return (self.control_points.tobytes(), self.control_points.shape, float(self.a),
+                float(self.b), float(self.degree), tuple(float(s) for s in self.scaling))
 
     def copy(self) -> SweepPrimitive:
         return copy.deepcopy(self)
