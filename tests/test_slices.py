@@ -257,9 +257,10 @@ def _loft_off_boundary(primitive: SweepPrimitive, sliced, distance: float) -> in
     inside test on both sides."""
     from scipy.interpolate import BSpline
 
-    from sweepedit.io.step_export import _ring_patches
+    from sweepedit.geometry.loft import ring_loft
 
-    t_knots, patches = _ring_patches(sliced.rings, sliced.u, sliced.angles)
+    loft = ring_loft(sliced.rings, sliced.u, sliced.angles)
+    t_knots, patches = loft.t_knots, loft.patches
     t = np.linspace(t_knots[0], t_knots[-1], 200)
     sheets = []
     for v_knots, poles in patches:

@@ -1,0 +1,165 @@
+"""Lofts through rings of boundary points, as B-spline patches, and whether a loft
+through slices crosses itself.
+
+A side surface (SideSurface) is four cubic x cubic B-spline patches that share their
+direction along the sweep (t) and each span a quarter turn around it. STEP export writes
+them as faces; a loft through slices (slices.py) is made by ring_loft.
+
+A loft through slices by a family of planes that do not cross (slices.SlicingPlanes)
+does not cross itself if (a) along every line of the surface across the slices, its
+position across the planes ("height") keeps increasing, and (b) at every height, the
+curve where the plane meets the surface is star-shaped about some point of that plane.
+By (a) each plane meets the surface in one curve around it; by (b) that curve is simple;
+so no two points of the surface coincide. loft_is_embedded tests both on dense samples
+of the surface (LOFT_SAMPLES per knot span each way, LEVELS_PER_ROW heights per row of
+samples): a sliver finer than that would pass, which OpenCascade's own check of the
+solid (crosses_itself in io/step_export.py) is asked for where this test cannot vouch
+for a loft. On the 142 lofts STEP export checked for the folding primitives of the
+official files and K = 8 fits, this test vouched for 89 of the 118 that OpenCascade
+passes and none of the 23 it finds crossing, in 27 ms against 0.25 s (median). It
+vouched for one more, which OpenCascade flags: a "self-intersection" of one face, 1.6e-4
+long at a corner of its end ring, whose points have one preimage on the face only
+(benchmarks/bench_loft_check.py; BENCHMARKS.md, STEP export).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+from scipy.interpolate import BSpline, make_interp_spline
+
+from sweepedit.geometry.slices import SlicingPlanes, quarter_turns
+
+# Samples per knot span of a loft's patches, in each direction, and heights tested per
+# row of samples (loft_is_embedded).
+LOFT_SAMPLES = 8
+LEVELS_PER_ROW = 4
+# How far round from a full turn (radians) a star-shaped level curve may add up to.
+TURN_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class SideSurface:
+    """A primitive's side surface as four B-spline patches sharing the t direction:
+    t_knots (Nt + 4,), for each quadrant (theta_knots (Nk + 4,), poles (Nt, Nk, 3))."""
+
+    t_knots: np.ndarray
+    patches: list[tuple[np.ndarray, np.ndarray]]
+
+
+def ring_loft(rings: np.ndarray, t: np.ndarray, angles: np.ndarray) -> SideSurface:
+    """Four B-spline patches interpolating rings (S, P, 3) at stations t (S,), split at
+    the quarter turns of angles (P,) (slices.quarter_turns: a slice's rays along the
+    frame's axes)."""
+    P = rings.shape[1]
+    patches = []
+    t_knots = None
+    for first, last in quarter_turns(angles):
+        idx = np.arange(first, last + 1) % P
+        theta = np.unwrap(angles[idx])
+        across = make_interp_spline(theta, rings[:, idx, :], k=3, axis=1)
+        poles = np.moveaxis(np.asarray(across.c), 0, 1)  # (S, Nk, 3)
+        along = make_interp_spline(t, poles, k=3, axis=0)
+        t_knots = np.asarray(along.t)
+        patches.append((np.asarray(across.t), np.asarray(along.c)))
+    assert t_knots is not None
+    return SideSurface(t_knots, patches)
+
+
+def _span_samples(knots: np.ndarray, per_span: int, last: bool) -> np.ndarray:
+    """per_span parameters evenly in each span of a cubic's knots (..., and the end)."""
+    inner = np.unique(knots[3:-3])
+    spans = [np.linspace(a, b, per_span, endpoint=False) for a, b in pairwise(inner)]
+    return np.concatenate([*spans, inner[-1:]] if last else spans)
+
+
+def loft_samples(surface: SideSurface, per_span: int = LOFT_SAMPLES) -> np.ndarray:
+    """Points of the surface (Mt, Mθ, 3): rows along t from end to end, columns once
+    round (the patches one after the other, each without its last column: the next
+    one's first)."""
+    t = _span_samples(surface.t_knots, per_span, last=True)
+    along = BSpline.design_matrix(t, surface.t_knots, 3).toarray()  # (Mt, Nt)
+    columns = []
+    for theta_knots, poles in surface.patches:
+        theta = _span_samples(theta_knots, per_span, last=False)
+        around = BSpline.design_matrix(theta, theta_knots, 3).toarray()  # (Mθ_k, Nk)
+        columns.append(np.einsum("ui,ijc,vj->uvc", along, poles, around, optimize=True))
+    return np.concatenate(columns, axis=1)
+
+
+def _star_shaped_about(curves: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Whether each closed polygon of curves (L, M, 2) turns once round its centre
+    (L, 1, 2), always the same way (-> (L,) bool): then it is star-shaped about it, and
+    simple."""
+    d = curves - centres
+    angle = np.arctan2(d[..., 1], d[..., 0])
+    step = np.diff(np.concatenate([angle, angle[:, :1]], axis=1), axis=1)
+    step = (step + np.pi) % (2.0 * np.pi) - np.pi
+    turn = step.sum(axis=1)
+    return (((step > 0.0).all(axis=1) & (np.abs(turn - 2.0 * np.pi) < TURN_TOLERANCE))
+            | ((step < 0.0).all(axis=1) & (np.abs(turn + 2.0 * np.pi) < TURN_TOLERANCE)))
+
+
+def _area_centroids(curves: np.ndarray) -> np.ndarray:
+    """The centroid of the area each closed polygon of curves (L, M, 2) encloses (L, 1, 2)."""
+    x, y = curves[..., 0], curves[..., 1]
+    xn, yn = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
+    cross = x * yn - xn * y
+    area = cross.sum(axis=1, keepdims=True) / 2.0
+    area = np.where(area == 0.0, 1e-300, area)
+    sums = np.stack([((x + xn) * cross).sum(axis=1, keepdims=True),
+                     ((y + yn) * cross).sum(axis=1, keepdims=True)], axis=-1)
+    return sums / (6.0 * area[..., None])
+
+
+def star_shaped(curves: np.ndarray) -> np.ndarray:
+    """Whether each closed polygon of curves (L, M, 2) is star-shaped about the mean of
+    its vertices or, failing that, its area's centroid (-> (L,) bool). Star-shaped
+    implies simple; a simple polygon star-shaped about neither reads False."""
+    ok = _star_shaped_about(curves, curves.mean(axis=1, keepdims=True))
+    if not ok.all():
+        rest = curves[~ok]
+        ok[~ok] = _star_shaped_about(rest, _area_centroids(rest))
+    return ok
+
+
+def loft_is_embedded(surface: SideSurface, planes: SlicingPlanes,
+                     per_span: int = LOFT_SAMPLES, levels_per_row: int = LEVELS_PER_ROW) -> bool:
+    """Whether the loft through slices by `planes` is seen not to cross itself, by the
+    test in the module's docstring on its samples. False means "not vouched for", not
+    "crosses": the height may turn back, or a level curve not be star-shaped about the
+    points tried, on a loft that is still simple."""
+    local = planes.to_local(loft_samples(surface, per_span))  # (Mt, Mθ, 3)
+    height = local[..., 0]
+    if not (np.diff(height, axis=0) > 0.0).all():
+        return False
+    rows, columns = height.shape
+    levels = np.linspace(height.min(), height.max(), levels_per_row * rows + 2)[1:-1]
+    # Each column's point at each level (its height increases along it).
+    across = np.empty((len(levels), columns, 2))
+    for j in range(columns):
+        for c in (0, 1):
+            across[:, j, c] = np.interp(levels, height[:, j], local[:, j, 1 + c])
+    below = levels[:, None] < height[0][None, :]  # the column starts above the level
+    above = levels[:, None] > height[-1][None, :]  # ... or ends below it
+    reached = ~(below | above)
+    whole = reached.all(axis=1)
+    if not star_shaped(across[whole]).all():
+        return False
+    # Levels through a cap: the columns that reach them must run on from one to the
+    # next round (the cap's chord closes the curve), through one cap only.
+    for k in np.nonzero(~whole)[0]:
+        if below[k].any() and above[k].any():
+            return False
+        count = int(reached[k].sum())
+        if count < 3:
+            continue
+        starts = np.nonzero(reached[k] & ~np.roll(reached[k], 1))[0]
+        if len(starts) != 1:
+            return False
+        run = (starts[0] + np.arange(count)) % columns
+        if not star_shaped(across[k, run][None])[0]:
+            return False
+    return True
