@@ -15,8 +15,8 @@ of the surface (LOFT_SAMPLES per knot span each way, LEVELS_PER_ROW heights per 
 samples): a sliver finer than that would pass, which OpenCascade's own check of the
 solid (crosses_itself in io/step_export.py) is asked for where this test cannot vouch
 for a loft. On the 142 lofts STEP export checked for the folding primitives of the
-official files and K = 8 fits, this test vouched for 89 of the 118 that OpenCascade
-passes and none of the 23 it finds crossing, in 27 ms against 0.25 s (median). It
+official files and K = 8 fits, this test vouched for 102 of the 118 that OpenCascade
+passes and none of the 23 it finds crossing, in 28 ms against 0.25 s (median). It
 vouched for one more, which OpenCascade flags: a "self-intersection" of one face, 1.6e-4
 long at a corner of its end ring, whose points have one preimage on the face only
 (benchmarks/bench_loft_check.py; BENCHMARKS.md, STEP export).
@@ -36,6 +36,9 @@ from sweepedit.geometry.slices import SlicingPlanes, quarter_turns
 # row of samples (loft_is_embedded).
 LOFT_SAMPLES = 8
 LEVELS_PER_ROW = 4
+# Points tried as a level curve's centre, per side of a grid, where the mean of its
+# points and its area's centroid fail (a crescent's lie outside it).
+CENTRE_GRID = 9
 # How far round from a full turn (radians) a star-shaped level curve may add up to.
 TURN_TOLERANCE = 1e-6
 
@@ -114,14 +117,30 @@ def _area_centroids(curves: np.ndarray) -> np.ndarray:
     return sums / (6.0 * area[..., None])
 
 
-def star_shaped(curves: np.ndarray) -> np.ndarray:
+def _grid_centres(curve: np.ndarray) -> np.ndarray:
+    """CENTRE_GRID^2 points evenly within the middle of a polygon's (M, 2) bounding box
+    -> (C, 1, 2)."""
+    lo, hi = curve.min(axis=0), curve.max(axis=0)
+    w = np.linspace(0.1, 0.9, CENTRE_GRID)
+    return (lo + np.stack(np.meshgrid(w, w), axis=-1).reshape(-1, 1, 2) * (hi - lo))
+
+
+def star_shaped(curves: np.ndarray, all_or_none: bool = False) -> np.ndarray:
     """Whether each closed polygon of curves (L, M, 2) is star-shaped about the mean of
-    its vertices or, failing that, its area's centroid (-> (L,) bool). Star-shaped
-    implies simple; a simple polygon star-shaped about neither reads False."""
+    its vertices, its area's centroid or, failing those, one of a grid of points in it
+    (-> (L,) bool). Star-shaped implies simple (a point the polygon does not turn round
+    once fails); a simple polygon star-shaped about none of them reads False. With
+    `all_or_none`, the grid stops at the first polygon that fails it (all False then)."""
     ok = _star_shaped_about(curves, curves.mean(axis=1, keepdims=True))
     if not ok.all():
         rest = curves[~ok]
         ok[~ok] = _star_shaped_about(rest, _area_centroids(rest))
+    for k in np.nonzero(~ok)[0]:
+        centres = _grid_centres(curves[k])
+        ok[k] = _star_shaped_about(np.broadcast_to(curves[k], (len(centres), *curves[k].shape)),
+                                   centres).any()
+        if all_or_none and not ok[k]:
+            return np.zeros(len(curves), dtype=bool)
     return ok
 
 
@@ -146,7 +165,7 @@ def loft_is_embedded(surface: SideSurface, planes: SlicingPlanes,
     above = levels[:, None] > height[-1][None, :]  # ... or ends below it
     reached = ~(below | above)
     whole = reached.all(axis=1)
-    if not star_shaped(across[whole]).all():
+    if not star_shaped(across[whole], all_or_none=True).all():
         return False
     # Levels through a cap: the columns that reach them must run on from one to the
     # next round (the cap's chord closes the curve), through one cap only.
