@@ -1,14 +1,15 @@
-"""Our test that a loft through slices does not cross itself (geometry/loft.py,
-loft_is_embedded) against OpenCascade's (io/step_export.py, crosses_itself), on every
-loft that STEP export checks while it builds the folding primitives of the files given.
+"""Our verdict on whether a loft through slices crosses itself (geometry/loft.py,
+loft_verdict) against OpenCascade's check of its solid (io/step_export.py,
+crosses_itself), on every loft that STEP export judges while it builds the folding
+primitives of the files given.
 
     .venv/bin/python benchmarks/bench_loft_check.py [--params DIR] [--fits DIR] [--out F]
 
-Each loft that reaches the crossing check (valid, within its volume, read back from
-STEP text) is checked both ways; the export itself goes on as it would (OpenCascade's
-check only where ours cannot vouch). Prints and writes the counts of (OpenCascade finds
-a crossing, ours vouches) and the seconds of each. A loft ours vouches for and
-OpenCascade does not is listed by primitive: each needs a look (see BENCHMARKS.md).
+Each loft is sewn into a solid and read back from STEP text as the export does, and
+checked both ways; the export itself goes on as it would (OpenCascade's check only where
+ours cannot tell). Prints and writes the counts of (OpenCascade finds a crossing, our
+verdict) and the seconds of each. Where ours tells and OpenCascade disagrees, the loft is
+listed by primitive: each needs a look (see BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -39,41 +40,42 @@ def main() -> None:
 
     rows: list[dict[str, Any]] = []
     current: dict[str, Any] = {}
-    as_written, ours = step_export._as_written, step_export.loft_is_embedded
+    ours = step_export.loft_verdict
 
-    def remember_solid(solid: Any, what: str) -> Any:
-        current["solid"] = as_written(solid, what)
-        return current["solid"]
-
-    def both_checks(loft: Any, planes: Any) -> bool:
+    def both_checks(loft: Any, planes: Any) -> Any:
         start = time.perf_counter()
-        vouched = ours(loft, planes)
+        verdict = ours(loft, planes)
         ours_s = time.perf_counter() - start
+        try:  # the solid as STEP export would check it
+            solid = step_export._as_written(
+                step_export._sewn_solid(current["primitive"], loft, None, "loft"), "loft")
+        except Exception:  # a loft OpenCascade cannot make a solid of
+            return verdict
         start = time.perf_counter()
-        crosses = step_export.crosses_itself(current["solid"])
+        crosses = step_export.crosses_itself(solid)
         rows.append({"primitive": current["name"], "occ_crosses": crosses,
-                     "ours_vouches": vouched, "ours_s": ours_s,
+                     "ours": verdict.value, "ours_s": ours_s,
                      "occ_s": time.perf_counter() - start,
                      "planes": type(planes).__name__})
-        return vouched
+        return verdict
 
-    step_export._as_written = remember_solid
-    step_export.loft_is_embedded = both_checks
+    step_export.loft_verdict = both_checks
     for path in files:
         for index, primitive in enumerate(read_abstraction(path).visible()):
             if not folds_onto_itself(primitive):
                 continue
             current["name"] = f"{path.name} #{index}"
+            current["primitive"] = primitive
             with contextlib.suppress(step_export.StepExportError):
                 step_export.primitive_solid(primitive, index)
-    counts = Counter((r["occ_crosses"], r["ours_vouches"]) for r in rows)
+    counts = Counter((r["occ_crosses"], r["ours"]) for r in rows)
     summary = {
         "lofts": len(rows),
-        "occ_crosses_ours_refuses": counts[(True, False)],
-        "occ_passes_ours_vouches": counts[(False, True)],
-        "occ_passes_ours_refuses": counts[(False, False)],
-        "occ_crosses_ours_vouches": [r["primitive"] for r in rows
-                                     if r["occ_crosses"] and r["ours_vouches"]],
+        **{f"occ_{'crosses' if occ else 'passes'}_ours_{ours}": n
+           for (occ, ours), n in sorted(counts.items())},
+        "disagreements": [(r["primitive"], r["occ_crosses"], r["ours"]) for r in rows
+                          if r["ours"] != "unknown"
+                          and r["occ_crosses"] != (r["ours"] == "crosses")],
         "ours_median_s": statistics.median(r["ours_s"] for r in rows) if rows else None,
         "ours_max_s": max((r["ours_s"] for r in rows), default=None),
         "occ_median_s": statistics.median(r["occ_s"] for r in rows) if rows else None,

@@ -9,7 +9,14 @@ import importlib.util
 import numpy as np
 import pytest
 
-from sweepedit.geometry.loft import loft_is_embedded, loft_samples, ring_loft, star_shaped
+from sweepedit.geometry.loft import (
+    LoftVerdict,
+    loft_samples,
+    loft_verdict,
+    polygon_crosses_itself,
+    ring_loft,
+    star_shaped,
+)
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.slices import RAYS, ParallelPlanes
 
@@ -50,10 +57,10 @@ def test_a_loft_through_circles_of_a_cone_lies_on_the_cone_and_is_vouched_for() 
     # circle's interpolation by cubics through 48 points errs (about 2e-6 of 0.3).
     assert np.abs(radius - (0.2 + 0.1 * height)).max() < 1e-5
     assert height[0].max() < 1e-12 and height[-1].min() > 1.0 - 1e-12
-    assert loft_is_embedded(loft, UP)
+    assert loft_verdict(loft, UP) is LoftVerdict.EMBEDDED
 
 
-def test_a_ring_twisted_into_a_figure_of_eight_is_not_vouched_for() -> None:
+def test_a_ring_twisted_into_a_figure_of_eight_is_seen_to_cross() -> None:
     rings, u = _cone()
     across = UP.to_local(rings)[..., 1:]
     # The middle rings turn into a figure of eight (Gerono's lemniscate, crossing
@@ -61,16 +68,17 @@ def test_a_ring_twisted_into_a_figure_of_eight_is_not_vouched_for() -> None:
     eight = 0.25 * np.stack([np.cos(ANGLES), 0.5 * np.sin(2.0 * ANGLES)], axis=-1)
     across[5:7] = eight
     loft = ring_loft(_rings(u, across), u, ANGLES)
-    assert not loft_is_embedded(loft, UP)
+    assert loft_verdict(loft, UP) is LoftVerdict.CROSSES
     assert not star_shaped(eight[None])[0]
+    assert polygon_crosses_itself(eight)
 
 
-def test_a_loft_whose_height_turns_back_is_not_vouched_for() -> None:
+def test_a_loft_whose_height_turns_back_is_left_to_opencascade() -> None:
     u = np.linspace(0.0, 1.0, 12)
     heights = u.copy()
     heights[6] = heights[4] - 0.02  # the 7th ring below the 5th: the side folds back
     loft = ring_loft(_rings(heights, _circles(0.2 + 0.1 * u)), u, ANGLES)
-    assert not loft_is_embedded(loft, UP)
+    assert loft_verdict(loft, UP) is LoftVerdict.UNKNOWN
 
 
 def test_star_shaped_polygons_and_others() -> None:
@@ -89,6 +97,8 @@ def test_star_shaped_polygons_and_others() -> None:
     c_shape = np.concatenate([np.stack([np.cos(arc), np.sin(arc)], axis=-1),
                               0.9 * np.stack([np.cos(arc[::-1]), np.sin(arc[::-1])], axis=-1)])
     assert not star_shaped(c_shape[None])[0]
+    assert not polygon_crosses_itself(c_shape)
+    assert not polygon_crosses_itself(astroid)
 
 
 @needs_occ
@@ -106,4 +116,5 @@ def test_our_verdict_agrees_with_opencascades_on_lofts_that_do_and_do_not_cross(
     for loft, crosses in ((plain, False), (twisted, True)):
         solid = _sewn_solid(anything, loft, None, "a loft")
         assert crosses_itself(solid) == crosses
-        assert loft_is_embedded(loft, UP) == (not crosses)
+        assert loft_verdict(loft, UP) is (LoftVerdict.CROSSES if crosses
+                                          else LoftVerdict.EMBEDDED)

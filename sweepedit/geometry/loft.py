@@ -10,21 +10,23 @@ does not cross itself if (a) along every line of the surface across the slices, 
 position across the planes ("height") keeps increasing, and (b) at every height, the
 curve where the plane meets the surface is star-shaped about some point of that plane.
 By (a) each plane meets the surface in one curve around it; by (b) that curve is simple;
-so no two points of the surface coincide. loft_is_embedded tests both on dense samples
-of the surface (LOFT_SAMPLES per knot span each way, LEVELS_PER_ROW heights per row of
-samples): a sliver finer than that would pass, which OpenCascade's own check of the
-solid (crosses_itself in io/step_export.py) is asked for where this test cannot vouch
-for a loft. On the 142 lofts STEP export checked for the folding primitives of the
-official files and K = 8 fits, this test vouched for 102 of the 118 that OpenCascade
-passes and none of the 23 it finds crossing, in 28 ms against 0.25 s (median). It
-vouched for one more, which OpenCascade flags: a "self-intersection" of one face, 1.6e-4
-long at a corner of its end ring, whose points have one preimage on the face only
-(benchmarks/bench_loft_check.py; BENCHMARKS.md, STEP export).
+so no two points of the surface coincide. Conversely, a level curve that crosses itself
+shows the loft crosses itself. loft_verdict tests both on dense samples of the surface
+(LOFT_SAMPLES per knot span each way, LEVELS_PER_ROW heights per row of samples): a
+sliver finer than that would pass, and OpenCascade's own check of the solid
+(crosses_itself in io/step_export.py) is asked for where neither is shown. On the 142
+lofts STEP export checked for the folding primitives of the official files and K = 8
+fits, this test vouched for 102 of the 118 that OpenCascade passes and none of the 23 it
+finds crossing, in 28 ms against 0.25 s (median). It vouched for one more, which
+OpenCascade flags: a "self-intersection" of one face, 1.6e-4 long at a corner of its end
+ring, whose points have one preimage on the face only (benchmarks/bench_loft_check.py;
+BENCHMARKS.md, STEP export).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 from itertools import pairwise
 
 import numpy as np
@@ -39,6 +41,8 @@ LEVELS_PER_ROW = 4
 # Points tried as a level curve's centre, per side of a grid, where the mean of its
 # points and its area's centroid fail (a crescent's lie outside it).
 CENTRE_GRID = 9
+# Level curves that are not star-shaped about their middles looked at for a crossing.
+CROSSING_TRIES = 8
 # How far round from a full turn (radians) a star-shaped level curve may add up to.
 TURN_TOLERANCE = 1e-6
 
@@ -125,35 +129,85 @@ def _grid_centres(curve: np.ndarray) -> np.ndarray:
     return (lo + np.stack(np.meshgrid(w, w), axis=-1).reshape(-1, 1, 2) * (hi - lo))
 
 
-def star_shaped(curves: np.ndarray, all_or_none: bool = False) -> np.ndarray:
+def _star_shaped_about_middles(curves: np.ndarray) -> np.ndarray:
     """Whether each closed polygon of curves (L, M, 2) is star-shaped about the mean of
-    its vertices, its area's centroid or, failing those, one of a grid of points in it
-    (-> (L,) bool). Star-shaped implies simple (a point the polygon does not turn round
-    once fails); a simple polygon star-shaped about none of them reads False. With
-    `all_or_none`, the grid stops at the first polygon that fails it (all False then)."""
+    its vertices or its area's centroid (-> (L,) bool)."""
     ok = _star_shaped_about(curves, curves.mean(axis=1, keepdims=True))
     if not ok.all():
         rest = curves[~ok]
         ok[~ok] = _star_shaped_about(rest, _area_centroids(rest))
-    for k in np.nonzero(~ok)[0]:
-        centres = _grid_centres(curves[k])
-        ok[k] = _star_shaped_about(np.broadcast_to(curves[k], (len(centres), *curves[k].shape)),
-                                   centres).any()
-        if all_or_none and not ok[k]:
-            return np.zeros(len(curves), dtype=bool)
     return ok
 
 
-def loft_is_embedded(surface: SideSurface, planes: SlicingPlanes,
-                     per_span: int = LOFT_SAMPLES, levels_per_row: int = LEVELS_PER_ROW) -> bool:
-    """Whether the loft through slices by `planes` is seen not to cross itself, by the
-    test in the module's docstring on its samples. False means "not vouched for", not
-    "crosses": the height may turn back, or a level curve not be star-shaped about the
-    points tried, on a loft that is still simple."""
+def _star_shaped_about_grid(curve: np.ndarray) -> bool:
+    """Whether a closed polygon (M, 2) is star-shaped about one of _grid_centres."""
+    centres = _grid_centres(curve)
+    return bool(_star_shaped_about(np.broadcast_to(curve, (len(centres), *curve.shape)),
+                                   centres).any())
+
+
+def star_shaped(curves: np.ndarray) -> np.ndarray:
+    """Whether each closed polygon of curves (L, M, 2) is star-shaped about the mean of
+    its vertices, its area's centroid or, failing those, one of a grid of points in it
+    (-> (L,) bool). Star-shaped implies simple (a point the polygon does not turn round
+    once fails); a simple polygon star-shaped about none of them reads False."""
+    ok = _star_shaped_about_middles(curves)
+    for k in np.nonzero(~ok)[0]:
+        ok[k] = _star_shaped_about_grid(curves[k])
+    return ok
+
+
+def polygon_crosses_itself(curve: np.ndarray) -> bool:
+    """Whether two edges of a closed polygon (M, 2) that share no vertex cross."""
+    M = len(curve)
+    start, end = curve, np.roll(curve, -1, axis=0)
+    i, j = np.triu_indices(M, 2)
+    keep = ~((i == 0) & (j == M - 1))  # the first and last edges share a vertex
+    i, j = i[keep], j[keep]
+
+    def side(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+
+    return bool(((side(start[i], end[i], start[j]) * side(start[i], end[i], end[j]) < 0.0)
+                 & (side(start[j], end[j], start[i]) * side(start[j], end[j], end[i]) < 0.0)
+                 ).any())
+
+
+class LoftVerdict(Enum):
+    """What loft_verdict finds of a loft through slices."""
+
+    EMBEDDED = "embedded"  # it does not cross itself (as far as its samples show)
+    CROSSES = "crosses"  # a plane meets it in a curve that crosses itself
+    UNKNOWN = "unknown"  # neither shown: a check of the solid must tell
+
+
+def _verdict_of_levels(curves: np.ndarray) -> LoftVerdict:
+    """The verdict on closed level curves (L, M, 2): EMBEDDED where all are
+    star-shaped, CROSSES where one of the first CROSSING_TRIES that are not (evenly
+    among them) crosses itself, else UNKNOWN."""
+    ok = _star_shaped_about_middles(curves)
+    failing = np.nonzero(~ok)[0]
+    if len(failing) == 0:
+        return LoftVerdict.EMBEDDED
+    tried = failing[np.unique(np.linspace(0, len(failing) - 1, CROSSING_TRIES).astype(int))]
+    if any(polygon_crosses_itself(curves[k]) for k in tried):
+        return LoftVerdict.CROSSES
+    if all(_star_shaped_about_grid(curves[k]) for k in failing):
+        return LoftVerdict.EMBEDDED
+    return LoftVerdict.UNKNOWN
+
+
+def loft_verdict(surface: SideSurface, planes: SlicingPlanes, per_span: int = LOFT_SAMPLES,
+                 levels_per_row: int = LEVELS_PER_ROW) -> LoftVerdict:
+    """Whether the loft through slices by `planes` does not cross itself (EMBEDDED, by
+    the test in the module's docstring on its samples), does (CROSSES: a plane meets it
+    in a curve that crosses itself), or neither can be told so (UNKNOWN: its height may
+    turn back, or a level curve be simple but star-shaped about none of the points
+    tried)."""
     local = planes.to_local(loft_samples(surface, per_span))  # (Mt, Mθ, 3)
     height = local[..., 0]
     if not (np.diff(height, axis=0) > 0.0).all():
-        return False
+        return LoftVerdict.UNKNOWN
     rows, columns = height.shape
     levels = np.linspace(height.min(), height.max(), levels_per_row * rows + 2)[1:-1]
     # Each column's point at each level (its height increases along it).
@@ -165,20 +219,22 @@ def loft_is_embedded(surface: SideSurface, planes: SlicingPlanes,
     above = levels[:, None] > height[-1][None, :]  # ... or ends below it
     reached = ~(below | above)
     whole = reached.all(axis=1)
-    if not star_shaped(across[whole], all_or_none=True).all():
-        return False
+    verdict = _verdict_of_levels(across[whole])
+    if verdict is not LoftVerdict.EMBEDDED:
+        return verdict
     # Levels through a cap: the columns that reach them must run on from one to the
     # next round (the cap's chord closes the curve), through one cap only.
     for k in np.nonzero(~whole)[0]:
         if below[k].any() and above[k].any():
-            return False
+            return LoftVerdict.UNKNOWN
         count = int(reached[k].sum())
         if count < 3:
             continue
         starts = np.nonzero(reached[k] & ~np.roll(reached[k], 1))[0]
         if len(starts) != 1:
-            return False
+            return LoftVerdict.UNKNOWN
         run = (starts[0] + np.arange(count)) % columns
-        if not star_shaped(across[k, run][None])[0]:
-            return False
-    return True
+        verdict = _verdict_of_levels(across[k, run][None])
+        if verdict is not LoftVerdict.EMBEDDED:
+            return verdict
+    return LoftVerdict.EMBEDDED
