@@ -4,8 +4,6 @@ OpenCascade's own check of the solid."""
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
@@ -19,9 +17,6 @@ from sweepedit.geometry.loft import (
 )
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.slices import RAYS, ParallelPlanes
-
-needs_occ = pytest.mark.skipif(importlib.util.find_spec("OCP") is None,
-                               reason="the optional 'cad' extra (OpenCascade) is not installed")
 
 ANGLES = np.linspace(0.0, 2.0 * np.pi, RAYS, endpoint=False)
 UP = ParallelPlanes(np.array([0.0, 0.0, 1.0]))
@@ -101,8 +96,8 @@ def test_star_shaped_polygons_and_others() -> None:
     assert not polygon_crosses_itself(astroid)
 
 
-@needs_occ
 def test_our_verdict_agrees_with_opencascades_on_lofts_that_do_and_do_not_cross() -> None:
+    pytest.importorskip("OCP", reason="the optional 'cad' extra (OpenCascade) is not installed")
     from sweepedit.io.step_export import _sewn_solid, crosses_itself
 
     anything = SweepPrimitive([[0.0, 0.0, 0.0], [0.0, 0.0, 0.5], [0.0, 0.0, 1.0]],
