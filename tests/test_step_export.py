@@ -242,6 +242,28 @@ def test_the_union_volume_by_sobol_points_is_the_closed_form_of_disjoint_primiti
     assert estimate == pytest.approx(exact, abs=4.0 * error)
 
 
+def test_the_volume_of_a_part_of_a_union_is_its_own_from_the_same_points() -> None:
+    # A union fused one solid at a time is checked at each step against the volume of
+    # the primitives fused so far, taken from the occupancy of all at the same points:
+    # each primitive alone is its closed form, two crossing ones less than the sum.
+    from sweepedit.io.step_export import UnionVolumes
+
+    rod = SweepPrimitive([[-0.3, 0, 0], [0, 0, 0], [0.3, 0, 0]], a=0.05, b=0.05, degree=2.0)
+    cross = SweepPrimitive([[0, -0.3, 0], [0, 0, 0], [0, 0.3, 0]], a=0.04, b=0.06, degree=1.5)
+    apart = SweepPrimitive([[0.1, 0.2, 0.3], [0.25, 0.3, 0.3], [0.4, 0.2, 0.35]], a=0.04,
+                           b=0.03, degree=3.0, scaling=(0.2, -0.3))
+    volumes = UnionVolumes([rod, cross, apart])
+    for k, prim in enumerate((rod, cross, apart)):
+        estimate, error = volumes.volume([k])
+        assert estimate == pytest.approx(closed_form_volume(prim), abs=4.0 * error + 1e-9)
+    # The rod and the cross overlap in a box 0.1 x 0.08 x ~0.1 around the origin.
+    pair, pair_error = volumes.volume([0, 1])
+    assert pair < closed_form_volume(rod) + closed_form_volume(cross) - 4.0 * pair_error
+    assert pair == pytest.approx(_monte_carlo([rod, cross], 400_000)[0], rel=0.02)
+    everything, _ = volumes.volume([2, 0, 1])
+    assert everything == pytest.approx(pair + closed_form_volume(apart), rel=0.01)
+
+
 @needs_occ
 def test_a_union_whose_fuse_drops_seven_tenths_of_a_percent_is_not_written(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

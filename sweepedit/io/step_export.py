@@ -691,6 +691,25 @@ _FOLD_VOLUMES: dict[tuple, tuple[float, float]] = {}
 _FOLD_VOLUMES_KEPT = 64
 
 
+def _sobol_sets(middle: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                replicates: int, log2_points: int, seed: int) -> Iterator[np.ndarray]:
+    """`replicates` independently scrambled Sobol sets of 2**log2_points points (each
+    (2**log2_points, 3)) in the box middle (3,) + [lo, hi] (3,) along the rows of
+    directions (3, 3), orthonormal."""
+    from scipy.stats import qmc
+
+    for k in range(replicates):
+        unit = qmc.Sobol(3, scramble=True, seed=seed + k).random_base2(log2_points)
+        yield middle + (lo + unit * (hi - lo)) @ directions
+
+
+def _replicated(shares: np.ndarray, box: float) -> tuple[float, float]:
+    """The volume from the shares (R,) of independent replicates' points inside, in a box
+    of volume `box` -> (estimate, standard error from their spread)."""
+    return (float(shares.mean()) * box,
+            float(shares.std(ddof=1)) / math.sqrt(len(shares)) * box)
+
+
 def sobol_volume(primitives: Sequence[SweepPrimitive], middle: np.ndarray,
                  directions: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                  replicates: int, log2_points: int, seed: int = 0) -> tuple[float, float]:
@@ -699,26 +718,40 @@ def sobol_volume(primitives: Sequence[SweepPrimitive], middle: np.ndarray,
     independently scrambled Sobol sets of 2**log2_points points -> (estimate, standard
     error from the spread of the replicates). The occupancy's boundary is smooth, so such
     points converge faster than random ones."""
-    from scipy.stats import qmc
+    shares = [inside_union(points, primitives).mean()
+              for points in _sobol_sets(middle, directions, lo, hi, replicates, log2_points,
+                                        seed)]
+    return _replicated(np.array(shares), float(np.prod(hi - lo)))
 
-    box = float(np.prod(hi - lo))
-    shares = np.empty(replicates)
-    for k in range(replicates):
-        unit = qmc.Sobol(3, scramble=True, seed=seed + k).random_base2(log2_points)
-        points = middle + (lo + unit * (hi - lo)) @ directions
-        shares[k] = inside_union(points, primitives).mean()
-    return (float(shares.mean()) * box,
-            float(shares.std(ddof=1)) / math.sqrt(replicates) * box)
+
+class UnionVolumes:
+    """The volume of the union of any of `primitives`, as sobol_volume estimates it in
+    the bounding box of all (UNION_REPLICATES sets of 2**UNION_LOG2_POINTS points), in
+    the normalised frame: each primitive's occupancy at the points is kept, so that a
+    union fused one solid at a time is checked at every step for one inside test a
+    primitive (0.1-0.3 s for 6-10 primitives). glyph_8.json's K = 8 fit: 0.095 % from
+    262k points in 0.2 s, where plain Monte Carlo (monte_carlo_volume) gave 0.52 % from
+    300k in 0.26 s (BENCHMARKS.md, STEP export)."""
+
+    def __init__(self, primitives: Sequence[SweepPrimitive]) -> None:
+        lo, hi = _bounds(primitives)
+        self._box = float(np.prod(hi - lo))
+        # one (points, primitives) bool table per replicate
+        self._inside = [np.stack([inside_union(points, [p]) for p in primitives], axis=1)
+                        for points in _sobol_sets(np.zeros(3), np.eye(3), lo, hi,
+                                                  UNION_REPLICATES, UNION_LOG2_POINTS, 0)]
+
+    def volume(self, members: Sequence[int]) -> tuple[float, float]:
+        """The union of the primitives at indices `members` -> (estimate, standard error)."""
+        columns = list(members)
+        return _replicated(np.array([inside[:, columns].any(axis=1).mean()
+                                     for inside in self._inside]), self._box)
 
 
 def union_volume(primitives: Sequence[SweepPrimitive]) -> tuple[float, float]:
     """Volume of the union of primitives -> (estimate, standard error), in the
-    normalised frame: sobol_volume in their bounding box. glyph_8.json's K = 8 fit: 0.095 %
-    from 262k points in 0.2 s, where plain Monte Carlo (monte_carlo_volume) gave 0.52 %
-    from 300k in 0.26 s (BENCHMARKS.md, STEP export)."""
-    lo, hi = _bounds(primitives)
-    return sobol_volume(primitives, np.zeros(3), np.eye(3), lo, hi, UNION_REPLICATES,
-                        UNION_LOG2_POINTS)
+    normalised frame (UnionVolumes)."""
+    return UnionVolumes(primitives).volume(range(len(primitives)))
 
 
 def _exact_volume(primitive: SweepPrimitive) -> float:
@@ -983,7 +1016,8 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
     lo, hi = _bounds(primitives)
     size = float(np.linalg.norm(hi - lo)) * (normalization.scale if normalization else 1.0)
     others = _OtherSolids(builds)
-    estimate, error = union_volume(primitives)
+    volumes = UnionVolumes(primitives)
+    estimate, error = volumes.volume(range(len(primitives)))
     tolerance = _union_tolerance(solids, primitives, estimate, error, scale3)
 
     def written(union: Any) -> bytes:
@@ -1017,7 +1051,8 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
     except StepExportError as failure:
         first_failure = failure
     try:
-        return checked(_fused_stepwise(solids, primitives, names, others, scale3, size, say))
+        return checked(_fused_stepwise(solids, primitives, names, others, volumes, scale3,
+                                       size, say))
     except StepExportError:
         pass
     # Where no step passes, one sliced solid may meet an earlier one in a way the fuse
@@ -1051,11 +1086,11 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
 
 
 def _fused_stepwise(solids: list[Any], primitives: list[SweepPrimitive], names: list[str],
-                    others: _OtherSolids, scale3: float, size: float,
+                    others: _OtherSolids, volumes: UnionVolumes, scale3: float, size: float,
                     say: Callable[[str], None]) -> Any:
     """The solids fused one at a time, the largest first, each partial union checked
-    (valid, its volume within _union_tolerance of union_volume's estimate for its
-    primitives) before the next is added. A step that fails is tried again fuzzy, nudged
+    (valid, its volume within _union_tolerance of the estimate of its primitives'
+    union) before the next is added. A step that fails is tried again fuzzy, nudged
     and with the new primitive's other solids; StepExportError names the primitive
     where none passes. Costs a check a step (0.1-0.7 s) over fuse_one_at_a_time."""
     order = sorted(range(len(solids)), key=lambda k: solid_volume(solids[k]), reverse=True)
@@ -1063,7 +1098,7 @@ def _fused_stepwise(solids: list[Any], primitives: list[SweepPrimitive], names: 
     for k in order[1:]:
         what = names[k]
         members = [*used, k]
-        estimate, error = union_volume([primitives[j] for j in members])
+        estimate, error = volumes.volume(members)
 
         def tries(fused: Any = fused, k: int = k) -> Iterator[tuple[str, Any, Any]]:
             yield "", solids[k], lambda: fuse_solids([fused, solids[k]])
