@@ -836,7 +836,9 @@ def test_a_union_that_no_plain_fuse_gets_right_is_fused_with_a_tolerance(
     prims = _crossing_pair()
     out = tmp_path / "union.step"
     export_step(Abstraction(prims), out, union=True)
-    assert len(fuzzy_values) == 1 and 0.0 < fuzzy_values[0] < 1e-4
+    # One fuzzy fuse, its tolerance a share of the union's size (within the unit cube)
+    assert len(fuzzy_values) == 1
+    assert 0.0 < fuzzy_values[0] <= max(step_export.FUZZY_FUSE_SHARES) * 3 ** 0.5
     estimate, error = _monte_carlo(prims, 400_000)
     assert solid_volume(_check(out)[0].shape) == pytest.approx(estimate, abs=4 * error)
 

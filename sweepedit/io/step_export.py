@@ -1102,7 +1102,9 @@ def _fused_stepwise(solids: list[Any], primitives: list[SweepPrimitive], names: 
 
         def tries(fused: Any = fused, k: int = k) -> Iterator[tuple[str, Any, Any]]:
             yield "", solids[k], lambda: fuse_solids([fused, solids[k]])
-            for share in FUZZY_FUSE_SHARES:
+            # The coarser share first: where two solids' fuse fails, it is the one that
+            # passes (glyph_8.json: 15.8 -> 13.3 s, the same solid).
+            for share in sorted(FUZZY_FUSE_SHARES, reverse=True):
                 yield (f", faces within {share:g} of their size touching", solids[k],
                        lambda share=share: fuse_solids([fused, solids[k]], share * size))
             yield (f", moved by {NUDGE_SHARE:g} of their size", solids[k],
