@@ -62,13 +62,15 @@ def _export_step(abstraction, args: argparse.Namespace) -> int:
         raise SweepeditError("a STEP file holds one solid per primitive already; "
                              "drop --per-primitive (or use --union for one fused solid)")
     cancel = threading.Event()
-    bar = tqdm(total=100, desc="STEP", dynamic_ncols=True, disable=args.quiet,
-               bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}")
+    bars: list[tqdm] = []  # made at the first progress: a bad path's error comes alone
 
     def progress(fraction: float, text: str) -> None:
-        bar.n = round(100 * fraction)
-        bar.set_postfix_str(text, refresh=False)
-        bar.refresh()
+        if not bars:
+            bars.append(tqdm(total=100, desc="STEP", dynamic_ncols=True, disable=args.quiet,
+                             bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}"))
+        bars[0].n = round(100 * fraction)
+        bars[0].set_postfix_str(text, refresh=False)
+        bars[0].refresh()
 
     try:
         report = _run_cancellable(lambda: export_step(
@@ -76,7 +78,8 @@ def _export_step(abstraction, args: argparse.Namespace) -> int:
             progress=progress, cancelled=cancel.is_set), cancel,
             "cancelling after the current step; nothing will be written...")
     finally:
-        bar.close()
+        for bar in bars:
+            bar.close()
     print(report.path)
     return 0
 

@@ -617,10 +617,11 @@ def test_cli_writes_step_and_refuses_bad_input_in_one_line(tmp_path: Path, capsy
     assert main(["export", str(bad), "-o", str(tmp_path / "nan.step"), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "nan.json" in err and len(err.strip().splitlines()) == 1
-    # a folder that does not exist
-    assert main(["export", str(params), "-o", str(tmp_path / "no" / "x.step"), "--quiet"]) == 2
+    # a folder that does not exist: the error alone, no progress bar started before it
+    assert main(["export", str(params), "-o", str(tmp_path / "no" / "x.step")]) == 2
     err = capsys.readouterr().err
-    assert "does not exist" in err and len(err.strip().splitlines()) == 1
+    assert err.startswith("sweepedit: error: ") and "does not exist" in err
+    assert len(err.strip().splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cli.STP", "nan.json", "p.json"]
 
 
