@@ -262,13 +262,20 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from sweepedit.analysis.metrics import evaluate
-    from sweepedit.fitting.fit import fit_abstraction
-    from sweepedit.io.params import write_abstraction
-    from sweepedit.io.shapes import load_shape
+    from sweepedit.io.mesh_export import mesh_format
+    from sweepedit.io.params import require_folder, write_abstraction
 
     if Path(args.output).suffix.lower() not in (".json", ".txt"):
         raise SweepeditError(f"{args.output}: parameter files end in .json or .txt")
+    # Every file the fit is for must be writable before it runs, not after, and before
+    # torch is imported (2 s). The picture's folder is made (render_abstraction).
+    require_folder(args.output)
+    if args.mesh:
+        mesh_format(require_folder(args.mesh))
+
+    from sweepedit.analysis.metrics import evaluate
+    from sweepedit.fitting.fit import fit_abstraction
+    from sweepedit.io.shapes import load_shape
     settings = _fit_settings(args)
     settings.validate()  # before the shape loads and the progress bar is drawn
     shape = load_shape(args.shape)

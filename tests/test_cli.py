@@ -164,13 +164,41 @@ def test_bad_fit_settings_fail_before_any_work(tmp_path: Path, capsys) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
+def test_fit_refuses_outputs_it_cannot_write_before_fitting(tmp_path: Path, capsys,
+                                                           monkeypatch) -> None:
+    # A missing folder for the parameters or the mesh, or a mesh format that does not
+    # exist, must fail before the shape is read and the fit runs, not after a minute's fit.
+    from sweepedit.fitting import fit
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the fit ran")
+
+    monkeypatch.setattr(fit, "fit_abstraction", no_fit)
+    shape = tmp_path / "not_read.obj"  # not there: reading it would be another error
+    missing = tmp_path / "missing"
+    for extra, needle in (((), f"{missing / 'p.json'}: the folder {missing} does not exist"),
+                          (("--mesh", missing / "m.glb"),
+                           f"{missing / 'm.glb'}: the folder {missing} does not exist"),
+                          (("--mesh", tmp_path / "m.foo"), "cannot write meshes as '.foo'")):
+        out = missing / "p.json" if not extra else tmp_path / "p.json"
+        assert run("fit", shape, "-o", out, *extra) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("sweepedit: error: ") and needle in err, err
+        assert len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_unwritable_output_names_the_output_not_a_temporary_file(params_file: Path,
                                                                   tmp_path: Path,
                                                                   capsys) -> None:
     target = tmp_path / "no_such_folder" / "m.stl"
     assert run("export", params_file, "-o", target) == 2
     err = capsys.readouterr().err
-    assert f"{target}: No such file or directory" in err and ".tmp" not in err
+    assert err.strip() == (f"sweepedit: error: {target}: the folder {target.parent} "
+                           "does not exist")
+    # the parameter writer, whose atomic write fails in the folder: the same words
+    assert run("convert", params_file, tmp_path / "no_such_folder" / "p.txt") == 2
+    assert f"the folder {target.parent} does not exist" in capsys.readouterr().err
     (tmp_path / "taken.obj").mkdir()  # a folder where the file should go
     assert run("export", params_file, "-o", tmp_path / "taken.obj") == 2
     err = capsys.readouterr().err

@@ -10,7 +10,7 @@ from sweepedit.errors import SweepeditError
 from sweepedit.geometry.mesher import DISPLAY_PROFILE_POINTS, DISPLAY_STATIONS, TriangleMesh
 from sweepedit.geometry.model import Abstraction, Normalization
 from sweepedit.geometry.solid import solid_mesh, solid_union
-from sweepedit.io.params import atomic_write_bytes
+from sweepedit.io.params import atomic_write_bytes, require_folder
 
 MESH_FORMATS = (".obj", ".ply", ".stl", ".glb")
 
@@ -51,7 +51,7 @@ def export_abstraction(abstraction: Abstraction, path: str | Path, *, per_primit
     and sharp stars get more). Per-primitive files are named STEM_NN.EXT beside `path`,
     one per primitive in order.
     """
-    path = Path(path)
+    path = require_folder(path)  # before the meshing, not after it
     mesh_format(path)
     if not abstraction.primitives:
         raise SweepeditError(f"{path}: the abstraction has no primitives to export")

@@ -41,7 +41,12 @@ from typing import IO, Any, Literal
 
 import numpy as np
 
-from sweepedit.errors import FileFormatError, InvalidPrimitiveError, primitive_label
+from sweepedit.errors import (
+    FileFormatError,
+    InvalidPrimitiveError,
+    SweepeditError,
+    primitive_label,
+)
 from sweepedit.geometry.model import (
     MIN_CONTROL_POINTS,
     Abstraction,
@@ -136,13 +141,27 @@ def atomic_open(path: PathLike, mode: Literal["wb", "w"] = "wb", *, encoding: st
     _fsync_directory(directory)
 
 
+def require_folder(path: PathLike) -> Path:
+    """`path` as a Path, or SweepeditError where the folder it would be written in does
+    not exist: for the checks before long work, so that none is done for a file that
+    cannot be written."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise SweepeditError(f"{path}: the folder {path.parent} does not exist")
+    return path
+
+
 def _about(exc: OSError, path: Path) -> OSError:
     """The same OS error, naming the file the caller asked for instead of the hidden
     temporary file (a missing folder or a folder in the way would otherwise be reported
-    against '.name.1234abcd.tmp')."""
+    against '.name.1234abcd.tmp'), and a missing folder by name rather than as "No such
+    file or directory"."""
     if exc.errno is None:
         return exc
-    return type(exc)(exc.errno, exc.strerror, str(path))
+    reason = exc.strerror
+    if isinstance(exc, FileNotFoundError) and not path.parent.is_dir():
+        reason = f"the folder {path.parent} does not exist"
+    return type(exc)(exc.errno, reason, str(path))
 
 
 def _create_temp(directory: Path, name: str) -> tuple[Path, int]:

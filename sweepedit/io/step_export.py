@@ -72,7 +72,7 @@ from sweepedit.geometry.sweep import (
     scaling_factor,
     superellipse,
 )
-from sweepedit.io.params import atomic_write_bytes
+from sweepedit.io.params import atomic_write_bytes, require_folder
 
 STEP_FORMATS = (".step", ".stp")
 CAD_MISSING = "STEP export needs the optional 'cad' extra: pip install 'sweepedit[cad]'"
@@ -1319,8 +1319,7 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
     path = Path(path)
     if not is_step_path(path):
         raise SweepeditError(f"{path}: a STEP file must end in .step or .stp")
-    if not path.parent.is_dir():  # before the work, not after it
-        raise SweepeditError(f"{path}: the folder {path.parent} does not exist")
+    require_folder(path)  # before the work, not after it
     chosen = [(i, p) for i, p in enumerate(abstraction.primitives) if p.visible]
     if not chosen:
         raise SweepeditError(f"{path}: the abstraction has no visible primitives to export")
