@@ -114,10 +114,13 @@ def _int_at_least(minimum: int, multiple_of: int = 1):
 def _load_points(path: str) -> "np.ndarray":  # noqa: F821, UP037
     import numpy as np
 
+    if not Path(path).is_file():
+        raise SweepeditError(f"{path}: no such file")
     try:
         points = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise SweepeditError(f"{path}: cannot read a .npy array ({exc})") from None
+    except (OSError, ValueError):  # numpy's own words name pickles and magic strings
+        raise SweepeditError(f"{path}: not a .npy array; save the points (N, 3) with "
+                             "numpy.save") from None
     if not isinstance(points, np.ndarray):  # an .npz archive
         raise SweepeditError(f"{path}: expected a .npy array of points, not an archive")
     if points.dtype.kind not in "biuf":

@@ -210,7 +210,9 @@ def test_unwritable_output_names_the_output_not_a_temporary_file(params_file: Pa
 def test_points_that_are_not_numbers(params_file: Path, tmp_path: Path, capsys) -> None:
     np.save(tmp_path / "words.npy", np.array([["a", "b", "c"]]))
     np.savez(tmp_path / "pts.npz", points=np.zeros((2, 3)))
-    for name, needle in (("words.npy", "expected numbers"), ("pts.npz", "archive")):
+    (tmp_path / "mesh.off").write_text("OFF\n0 0 0\n")
+    for name, needle in (("words.npy", "expected numbers"), ("pts.npz", "archive"),
+                         ("mesh.off", "not a .npy array"), ("absent.npy", "no such file")):
         assert run("inside", params_file, tmp_path / name, "-o", tmp_path / "o.npy") == 2
         err = capsys.readouterr().err
         assert name in err and needle in err and "Traceback" not in err

@@ -694,7 +694,7 @@ class MainWindow(QMainWindow):
             written = export_abstraction(visible, path, per_primitive=per_primitive,
                                          original_frame=True)
         except Exception as exc:
-            self.report_error("Cannot export mesh", _describe(exc, path))
+            self.report_error("Cannot export mesh", save_failure_text(exc, path))
             return False
         self.show_status(f"Exported {len(written)} file(s): {', '.join(p.name for p in written)}")
         return True
@@ -767,7 +767,7 @@ class MainWindow(QMainWindow):
 
             atomic_write_bytes(path, _png_bytes(image))
         except Exception as exc:
-            self.report_error("Cannot save screenshot", _describe(exc, path))
+            self.report_error("Cannot save screenshot", save_failure_text(exc, path))
             return False
         self.show_status(f"Saved {path}")
         return True
@@ -1262,6 +1262,8 @@ def save_failure_text(exc: BaseException, path: Path) -> str:
     """Why a save failed and what to do, in the user's words (not "[Errno 2] ...")."""
     what = f"Could not save {path.name}"
     folder = path.parent
+    if not folder.exists():  # whoever found it out first (an OSError, or a check before)
+        return f"{what}: the folder {folder} does not exist. Choose another folder."
     if isinstance(exc, OSError):
         code = exc.errno
         if code == errno.ENOENT or (code is None and not folder.is_dir()):

@@ -258,6 +258,15 @@ def test_a_failed_save_says_what_happened_and_what_to_do(qtbot, window, small_fi
                                              f"{target.parent} does not exist. Choose another "
                                              "folder.")]
     assert "Errno" not in window.errors[0][1]
+    # exporting a mesh and saving a picture there: the same words, and the app goes on
+    assert not window.export_mesh(target.with_suffix(".obj"))
+    assert not window.save_screenshot(target.with_suffix(".png"))
+    assert window.errors[1:] == [
+        ("Cannot export mesh", f"Could not save cactus.obj: the folder {target.parent} "
+                               "does not exist. Choose another folder."),
+        ("Cannot save screenshot", f"Could not save cactus.png: the folder {target.parent} "
+                                   "does not exist. Choose another folder.")]
+    assert not target.parent.exists()
 
 
 @pytest.mark.gui
