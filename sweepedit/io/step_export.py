@@ -1005,9 +1005,10 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
     (primitive_solids), `seconds` how long each took to build. The first failure's
     StepExportError where no attempt passes.
 
-    OpenCascade's fuse of all at once sometimes drops material or comes out invalid
-    (7 of 54 files in the benchmark). Then the solids are fused one at a time, the
-    largest first, each partial union checked against its own estimate, so that a step
+    OpenCascade's fuse of all at once (largest first, _largest_first) sometimes drops
+    material or comes out invalid (2 of the benchmark's 51 unions on 12-06: hand2.txt,
+    glyph_8.json; up to 7 with earlier solids). Then the solids are fused one at a time,
+    the largest first, each partial union checked against its own estimate, so that a step
     that goes wrong is known and retried alone: fuzzy (faces that close taken as
     touching: hand.json), nudged (moved a hair apart: bone, fertility, hammer), or with
     the new primitive sliced another way (glyph_8.json's 5th). Where that fails too, the
@@ -1047,7 +1048,7 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
 
     say("fusing the solids")
     try:
-        return checked(fuse_solids(solids))
+        return checked(fuse_solids([solids[k] for k in _largest_first(solids)]))
     except StepExportError as failure:
         first_failure = failure
     try:
@@ -1085,6 +1086,15 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
         raise first_failure from None
 
 
+def _largest_first(solids: Sequence[Any]) -> list[int]:
+    """The indices of `solids` by volume, the largest first: the order both fuses take
+    them in. OpenCascade's fuse of all at once depends on it: octopus.json's K = 8 fit
+    came out 59 % short in the primitives' order and right (+0.27 %) largest first,
+    where the 50 other unions of the benchmark came out the same either way
+    (BENCHMARKS.md, STEP export)."""
+    return sorted(range(len(solids)), key=lambda k: solid_volume(solids[k]), reverse=True)
+
+
 def _fused_stepwise(solids: list[Any], primitives: list[SweepPrimitive], names: list[str],
                     others: _OtherSolids, volumes: UnionVolumes, scale3: float, size: float,
                     say: Callable[[str], None]) -> Any:
@@ -1093,7 +1103,7 @@ def _fused_stepwise(solids: list[Any], primitives: list[SweepPrimitive], names: 
     union) before the next is added. A step that fails is tried again fuzzy, nudged
     and with the new primitive's other solids; StepExportError names the primitive
     where none passes. Costs a check a step (0.1-0.7 s) over fuse_one_at_a_time."""
-    order = sorted(range(len(solids)), key=lambda k: solid_volume(solids[k]), reverse=True)
+    order = _largest_first(solids)
     fused, used = solids[order[0]], {order[0]: solids[order[0]]}
     for k in order[1:]:
         what = names[k]
