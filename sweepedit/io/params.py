@@ -147,8 +147,13 @@ def require_folder(path: PathLike) -> Path:
     cannot be written."""
     path = Path(path)
     if not path.parent.is_dir():
-        raise SweepeditError(f"{path}: the folder {path.parent} does not exist")
+        raise SweepeditError(f"{path}: {_missing_folder(path)}")
     return path
+
+
+def _missing_folder(path: Path) -> str:
+    """Why `path` cannot be written when its folder is missing, in a user's words."""
+    return f"the folder {path.parent} does not exist"
 
 
 def _about(exc: OSError, path: Path) -> OSError:
@@ -160,7 +165,7 @@ def _about(exc: OSError, path: Path) -> OSError:
         return exc
     reason = exc.strerror
     if isinstance(exc, FileNotFoundError) and not path.parent.is_dir():
-        reason = f"the folder {path.parent} does not exist"
+        reason = _missing_folder(path)
     return type(exc)(exc.errno, reason, str(path))
 
 

@@ -958,10 +958,10 @@ def nudged(solids: Sequence[Any], distance: float, seed: int = 0) -> list[Any]:
 
 def fuse_one_at_a_time(solids: Sequence[Any]) -> Any:
     """The boolean union of OpenCascade solids, fused one at a time, the largest first."""
-    order = sorted(solids, key=solid_volume, reverse=True)
-    fused = order[0]
-    for solid in order[1:]:
-        fused = fuse_solids([fused, solid])
+    order = _largest_first(solids)
+    fused = solids[order[0]]
+    for k in order[1:]:
+        fused = fuse_solids([fused, solids[k]])
     return fused
 
 
@@ -1046,14 +1046,15 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
                     raise
         raise AssertionError("unreachable")
 
+    order = _largest_first(solids)
     say("fusing the solids")
     try:
-        return checked(fuse_solids([solids[k] for k in _largest_first(solids)]))
+        return checked(fuse_solids([solids[k] for k in order]))
     except StepExportError as failure:
         first_failure = failure
     try:
-        return checked(_fused_stepwise(solids, primitives, names, others, volumes, scale3,
-                                       size, say))
+        return checked(_fused_stepwise(solids, order, primitives, names, others, volumes,
+                                       scale3, size, say))
     except StepExportError:
         pass
     # Where no step passes, one sliced solid may meet an earlier one in a way the fuse
@@ -1095,15 +1096,14 @@ def _largest_first(solids: Sequence[Any]) -> list[int]:
     return sorted(range(len(solids)), key=lambda k: solid_volume(solids[k]), reverse=True)
 
 
-def _fused_stepwise(solids: list[Any], primitives: list[SweepPrimitive], names: list[str],
-                    others: _OtherSolids, volumes: UnionVolumes, scale3: float, size: float,
-                    say: Callable[[str], None]) -> Any:
-    """The solids fused one at a time, the largest first, each partial union checked
+def _fused_stepwise(solids: list[Any], order: list[int], primitives: list[SweepPrimitive],
+                    names: list[str], others: _OtherSolids, volumes: UnionVolumes,
+                    scale3: float, size: float, say: Callable[[str], None]) -> Any:
+    """The solids fused one at a time in `order` (_largest_first), each partial union checked
     (valid, its volume within _union_tolerance of the estimate of its primitives'
     union) before the next is added. A step that fails is tried again fuzzy, nudged
     and with the new primitive's other solids; StepExportError names the primitive
     where none passes. Costs a check a step (0.1-0.7 s) over fuse_one_at_a_time."""
-    order = _largest_first(solids)
     fused, used = solids[order[0]], {order[0]: solids[order[0]]}
     for k in order[1:]:
         what = names[k]
