@@ -33,6 +33,10 @@ RANGE_QUANTILE = 0.98
 MIN_RANGE = 0.01
 DELAY_MS = 60  # edits pause this long before a recomputation starts
 PRIMITIVE_OPACITY = 0.2
+# The colour bar's left edge and width as shares of the view's width; while it shows,
+# the scene keeps the share right of its title and labels clear (SweepScene's margin).
+BAR_LEFT, BAR_WIDTH = 0.88, 0.09
+BAR_MARGIN = 1.0 - BAR_LEFT + 0.01
 TITLE = "distance\n+ missed\n- excess"
 
 
@@ -113,8 +117,8 @@ class HeatMapView(QObject):
         self.scalar_bar.SetTitle(TITLE)
         self.scalar_bar.SetNumberOfLabels(5)
         self.scalar_bar.SetLabelFormat("%+.3f")
-        self.scalar_bar.SetPosition(0.88, 0.1)
-        self.scalar_bar.SetWidth(0.09)
+        self.scalar_bar.SetPosition(BAR_LEFT, 0.1)
+        self.scalar_bar.SetWidth(BAR_WIDTH)
         self.scalar_bar.SetHeight(0.8)
         for prop in (self.scalar_bar.GetTitleTextProperty(),
                      self.scalar_bar.GetLabelTextProperty()):
@@ -146,6 +150,7 @@ class HeatMapView(QObject):
             self.doc.shape_changed.connect(self._on_shape_changed)
             self.doc.primitives_reset.connect(self._style_primitives)
             self.scalar_bar.VisibilityOn()
+            self.scene.set_right_margin(BAR_MARGIN)
             self._style_primitives()
             self.request(delay=False)
         else:
@@ -153,6 +158,7 @@ class HeatMapView(QObject):
             self._disconnect()
             self._remove_actor()
             self.scalar_bar.VisibilityOff()
+            self.scene.set_right_margin(0.0)
             self._style_primitives()
         self.scene.request_render()
         return True

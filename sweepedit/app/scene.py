@@ -143,6 +143,7 @@ class SweepScene:
         self._shape_actor: vtk.vtkActor | None = None
         self._shape_visible = True
         self._shape_opacity = 0.3
+        self._right_margin = 0.0  # share of the view's width kept for an overlay
         self._hover: int | None = None
         self._drag: tuple[int, int] | None = None
         self._drag_depth = 0.0
@@ -259,8 +260,7 @@ class SweepScene:
         b = main.ComputeVisiblePropBounds()
         if b[0] > b[1]:
             b = (-0.5, 0.5, -0.5, 0.5, -0.5, 0.5)
-        main.ResetCamera(b)
-        self.request_render()
+        self._fit(b)
 
     # -- target shape ---------------------------------------------------------------------
     @property
@@ -723,8 +723,7 @@ class SweepScene:
         camera.SetFocalPoint(*center)
         camera.SetPosition(*(center + direction / np.linalg.norm(direction)))
         camera.SetViewUp(*up)
-        self.plotter.renderer.ResetCamera(b)
-        self.request_render()
+        self._fit(b)
 
     @property
     def orthographic(self) -> bool:
@@ -743,8 +742,44 @@ class SweepScene:
 
     def frame_selection(self) -> None:
         """Fit the view to the selected primitives (everything when none is selected)."""
-        self.plotter.renderer.ResetCamera(self._bounds(self.doc.selected_indices))
+        self._fit(self._bounds(self.doc.selected_indices))
+
+    def _fit(self, bounds: Sequence[float]) -> None:
+        """Fit the camera to bounds (6,) in the part of the view left of the margin."""
+        self.plotter.renderer.ResetCamera(tuple(bounds))
+        if self._right_margin:
+            self._shrink_view(1.0 - self._right_margin)
         self.request_render()
+
+    @property
+    def right_margin(self) -> float:
+        return self._right_margin
+
+    def set_right_margin(self, share: float) -> None:
+        """Keep the right `share` of the view's width (0 <= share < 0.5) clear for an
+        overlay, such as the heat map's colour bar: the picture shrinks by 1 - share
+        towards the view's left edge, so that what was in view stays in view, none of
+        it under the overlay, and camera fits use what is left. 0 undoes it exactly."""
+        if not 0.0 <= share < 0.5:
+            raise ValueError(f"a right margin is a share of the width in [0, 0.5), got {share}")
+        if share == self._right_margin:
+            return
+        self._shrink_view((1.0 - share) / (1.0 - self._right_margin))
+        # The projection's centre moves by the share: x -> x - share in the view's
+        # [-1, 1] coordinates, which takes the shrunk picture from [share - 1, 1 - share]
+        # to [-1, 1 - 2 share]: from the left edge to 1 - share of the width.
+        self.plotter.renderer.GetActiveCamera().SetWindowCenter(share, 0.0)
+        self._right_margin = share
+        self.request_render()
+
+    def _shrink_view(self, factor: float) -> None:
+        """Scale the picture about the projection's centre by `factor` (< 1: smaller)."""
+        camera = self.plotter.renderer.GetActiveCamera()
+        if camera.GetParallelProjection():
+            camera.SetParallelScale(camera.GetParallelScale() / factor)
+        else:
+            camera.Dolly(factor)  # the distance divided by it
+        self.plotter.renderer.ResetCameraClippingRange()
 
 
 _AXIS_KEYS = {Qt.Key.Key_X: 0, Qt.Key.Key_Y: 1, Qt.Key.Key_Z: 2}

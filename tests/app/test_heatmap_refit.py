@@ -95,6 +95,66 @@ def test_heat_map_toggles_with_a_colour_bar_and_colours_the_true_distances(
     assert not view.running  # no longer listening to the document
 
 
+def _camera_state(scene) -> np.ndarray:
+    camera = scene.plotter.renderer.GetActiveCamera()
+    return np.array([*camera.GetPosition(), *camera.GetFocalPoint(), *camera.GetViewUp(),
+                     *camera.GetWindowCenter(), camera.GetParallelScale()])
+
+
+@pytest.mark.parametrize("orthographic", [False, True])
+def test_the_colour_bar_never_covers_the_shape(qtbot, window, sphere_files,
+                                               orthographic: bool) -> None:
+    # A wide target (a capsule 4 times as long as thick), zoomed in on so that it spans
+    # the view's width, where the colour bar sits over the right-most 12 %.
+    trimesh = pytest.importorskip("trimesh")
+    from sweepedit.app.heatmap_view import BAR_LEFT
+
+    wide = sphere_files["shape"].with_name("capsule.obj")
+    trimesh.creation.capsule(height=3.0, radius=0.5).apply_transform(
+        trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0])).export(wide)
+    assert window.open_path(wide)
+    assert window.open_path(sphere_files["params"])
+    scene = window.scene
+    scene.set_orthographic(orthographic)
+    scene.view_preset("front")  # the capsule's length across the view
+    scene.plotter.renderer.GetActiveCamera().Zoom(1.5)
+    scene.render_now()
+    width = scene.plotter.render_window.GetSize()[0]
+    points = _shape_points(window)
+
+    def across() -> np.ndarray:
+        scene.render_now()
+        return scene.world_to_display(points)[:, 0]
+
+    x = across()
+    assert x.min() >= 0.0 and x.max() > BAR_LEFT * width  # in view, some under the bar
+    before = _camera_state(scene)
+    window.act_heatmap.trigger()
+    x = across()  # what was in view stays in view, clear of the bar
+    assert x.min() >= 0.0 and x.max() < (BAR_LEFT - 0.005) * width
+    window.act_heatmap.trigger()  # off: the view as it was, to rounding
+    assert np.allclose(_camera_state(scene), before, rtol=1e-9, atol=1e-12)
+    assert scene.right_margin == 0.0
+
+    window.act_heatmap.trigger()
+    window.doc.select(0)
+    for fit in (scene.reset_camera, lambda: scene.view_preset("top"),
+                scene.frame_selection):
+        fit()
+        x = across()
+        assert x.min() >= 0.0 and x.max() < (BAR_LEFT - 0.005) * width
+    # Picking follows the picture: the barrel's middle is picked where it is drawn.
+    middle = scene.world_to_display(np.zeros((1, 3)))[0]
+    assert scene.pick_primitive(middle[0], middle[1]) == 0
+
+
+def _shape_points(window) -> np.ndarray:
+    """The target's vertices (V, 3) as the scene draws them."""
+    from sweepedit.app.scene import shape_polydata
+
+    return np.array(shape_polydata(window.doc.shape).points, dtype=np.float64)
+
+
 def test_heat_map_needs_a_shape_and_closes_cleanly(qtbot, window) -> None:
     assert not window.set_heatmap_visible(True)
     assert not window.act_heatmap.isChecked()
