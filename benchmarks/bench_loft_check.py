@@ -32,7 +32,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--params", type=Path, default=Path("../shared/sweepnet_params"))
     parser.add_argument("--fits", type=Path, default=None)
-    parser.add_argument("--out", type=Path, default=Path("loft_check.json"))
+    parser.add_argument("--out", type=Path, default=Path("bench-out/loft_check.json"))
     args = parser.parse_args()
     files = sorted(args.params.glob("*.txt"))
     if args.fits is not None:
@@ -81,6 +81,7 @@ def main() -> None:
         "occ_median_s": statistics.median(r["occ_s"] for r in rows) if rows else None,
     }
     print(json.dumps(summary, indent=1))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"summary": summary, "lofts": rows}, indent=1))
 
 
