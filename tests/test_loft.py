@@ -68,6 +68,32 @@ def test_a_ring_twisted_into_a_figure_of_eight_is_seen_to_cross() -> None:
     assert polygon_crosses_itself(eight)
 
 
+def _end_looped(start: float) -> tuple[np.ndarray, np.ndarray]:
+    """A cone's rings (S, P, 3) and u (S,), dense near u = 0, whose 11th point runs
+    `start` of a step past the 12th at u = 0 and back into line within u ~ 0.002: for
+    start > 0 the first ring, a cap's outline, makes a small loop there and no ring much
+    above it does (as in balloondog.json's 8th primitive, K = 8)."""
+    u = np.array([0.0, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 0.01, 0.03, 0.1, 0.3, 0.6, 1.0])
+    step = ANGLES[1] - ANGLES[0]
+    past = start - (1.0 + start) * (1.0 - np.exp(-u / 5e-4))  # -> -1: back in line
+    theta = np.broadcast_to(ANGLES, (len(u), len(ANGLES))).copy()
+    theta[:, 10] = ANGLES[10] + (1.0 + past) * step
+    across = (0.2 + 0.1 * u)[:, None, None] * np.stack([np.cos(theta), np.sin(theta)], -1)
+    return _rings(u, across), u
+
+
+def test_a_loop_in_an_end_ring_alone_is_seen_to_cross() -> None:
+    # The level curves lie above the first 0.003 of the height, the loop below it; the
+    # end rings are tested on their own, each in its own plane.
+    for start, crosses in ((0.3, True), (-0.3, False)):
+        rings, u = _end_looped(start)
+        assert polygon_crosses_itself(UP.to_local(rings[0])[:, 1:]) is crosses
+        assert not polygon_crosses_itself(UP.to_local(rings[4])[:, 1:])
+        loft = ring_loft(rings, u, ANGLES)
+        assert loft_verdict(loft, UP) is (LoftVerdict.CROSSES if crosses
+                                          else LoftVerdict.EMBEDDED)
+
+
 def test_a_loft_whose_height_turns_back_is_left_to_opencascade() -> None:
     u = np.linspace(0.0, 1.0, 12)
     heights = u.copy()
@@ -108,7 +134,8 @@ def test_our_verdict_agrees_with_opencascades_on_lofts_that_do_and_do_not_cross(
     across[5:7] = 0.25 * np.stack([np.cos(ANGLES), 0.5 * np.sin(2.0 * (ANGLES - 0.3))],
                                   axis=-1)
     twisted = ring_loft(_rings(u, across), u, ANGLES)
-    for loft, crosses in ((plain, False), (twisted, True)):
+    end_looped = ring_loft(*_end_looped(0.3), ANGLES)
+    for loft, crosses in ((plain, False), (twisted, True), (end_looped, True)):
         solid = _sewn_solid(anything, loft, None, "a loft")
         assert crosses_itself(solid) == crosses
         assert loft_verdict(loft, UP) is (LoftVerdict.CROSSES if crosses

@@ -153,6 +153,14 @@ STEP_BYTES_PER_PRIMITIVE = 250_000
 # Sewing tolerance, relative to the solid's size: neighbouring faces share their edge
 # curves exactly, so this only absorbs rounding.
 SEW_TOLERANCE = 1e-7
+# A curve along which a face meets itself is a crossing only where its two points on the
+# face lie apart on it: further than this (relative to the face's size) along the
+# straight path between them in its parameters, sampled at SAME_POINT_STEPS steps.
+# OpenCascade's check also reports "curves" whose two points on the face are one
+# (camel.json's 4th: 3e-6 long, its points 1e-9 apart on the face; a real crossing's are
+# as far apart as the sheets that meet).
+SAME_POINT_SHARE = 1e-6
+SAME_POINT_STEPS = 8
 _GAUSS = np.polynomial.legendre.leggauss(48)
 
 Progress = Callable[[float, str], None]
@@ -820,14 +828,80 @@ def crosses_itself(shape: Any) -> bool:
     where its cubics bend sharply (near a fold's crease or an end), which the volume
     check passes, BRepCheck_Analyzer does not look for, and a CAD tool's booleans trip
     on: 10 of 125 folding solids did (BENCHMARKS.md, STEP export). 0.3-1 s for a
-    folding solid, on both cores."""
+    folding solid, on both cores. A face that the check finds meeting itself crosses
+    itself only where the two points of a meeting lie apart on it (_face_meets_itself):
+    at a loft's short end edge the check also finds "curves" whose two points on the face
+    are one (camel.json's 4th, glyph_G.json's 6th)."""
     from OCP.BRepAlgoAPI import BRepAlgoAPI_Check
 
     check = BRepAlgoAPI_Check()
     check.SetData(shape, False, True)  # self-interference only, not the small-edge test
     check.SetRunParallel(True)
     check.Perform()
-    return not check.IsValid()
+    if check.IsValid():
+        return False
+    for result in check.Result():
+        face = _face_alone(result)
+        if face is None or _face_meets_itself(face):
+            return True
+    return False
+
+
+def _face_alone(result: Any) -> Any | None:
+    """The face of a BRepAlgoAPI_Check result that reports one face meeting itself (its
+    check intersects each B-spline face with itself), else None: a crossing of two
+    sub-shapes, or anything else the check found."""
+    from OCP.BOPAlgo import BOPAlgo_CheckStatus
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopoDS import TopoDS
+
+    faulty = [*result.GetFaultyShapes1(), *result.GetFaultyShapes2()]
+    if (result.GetCheckStatus() != BOPAlgo_CheckStatus.BOPAlgo_SelfIntersect or not faulty
+            or faulty[0].ShapeType() != TopAbs_FACE
+            or not all(s.IsSame(faulty[0]) for s in faulty)):
+        return None
+    return TopoDS.Face(faulty[0])
+
+
+def _face_meets_itself(face: Any, samples: int = 9) -> bool:
+    """Whether a face meets itself at two points that lie apart on it (SAME_POINT_SHARE):
+    OpenCascade's intersection of the face with itself (as its check runs it), each
+    curve found followed at `samples` points and each point found, with their parameters
+    on both copies of the face. Where the intersection fails, True (cannot vouch)."""
+    from OCP.Bnd import Bnd_Box
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepBndLib import BRepBndLib
+    from OCP.IntTools import IntTools_FaceFace
+
+    meet = IntTools_FaceFace()
+    meet.SetParameters(True, True, True, SEW_TOLERANCE)  # with its curves on both copies
+    meet.Perform(face, face, False)
+    if not meet.IsDone():
+        return True
+    surface = BRep_Tool.Surface_s(face)
+    box = Bnd_Box()
+    BRepBndLib.Add_s(face, box)
+    apart = SAME_POINT_SHARE * math.sqrt(box.SquareExtent())
+
+    def path(uv1: tuple[float, float], uv2: tuple[float, float]) -> float:
+        steps = np.linspace(0.0, 1.0, SAME_POINT_STEPS + 1)[:, None]
+        uv = (1.0 - steps) * np.asarray(uv1) + steps * np.asarray(uv2)
+        points = np.array([surface.Value(u, v).Coord() for u, v in uv])
+        return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+    pairs: list[tuple[tuple[float, float], tuple[float, float]]] = []
+    for curve in meet.Lines():
+        on1, on2 = curve.FirstCurve2d(), curve.SecondCurve2d()
+        if on1 is None or on2 is None:
+            return True
+        first, last = curve.Curve().FirstParameter(), curve.Curve().LastParameter()
+        if not (math.isfinite(first) and math.isfinite(last)):
+            return True
+        for t in np.linspace(first, last, samples):
+            pairs.append((on1.Value(t).Coord(), on2.Value(t).Coord()))
+    for point in meet.Points():
+        pairs.append((point.P1().Parameters(), point.P2().Parameters()))
+    return any(path(uv1, uv2) > apart for uv1, uv2 in pairs)
 
 
 # --------------------------------------------------------------------------- union
