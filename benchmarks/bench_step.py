@@ -9,7 +9,7 @@ the union re-read from its file against the exact inside test.
 1. Random primitives that do not fold (d in [0.3, 5], curved axes of 3 to 6 control
    points, random scalings; seeded): each written to its own STEP file, read back with
    OpenCascade's reader; valid (OpenCascade's checker, and its self-interference check
-   for boolean operations as the export judges it, step_export.crosses_itself; the raw
+   for boolean operations as the export judges it, step_export.is_crossing; the raw
    check's alarms that it dismisses are counted apart), volume against the closed form,
    seconds, bytes.
 2. Every primitive of the official parameter files (--params, the .txt files) and of the
@@ -40,10 +40,11 @@ from sweepedit.io.occupancy import winding_numbers
 from sweepedit.io.params import read_abstraction
 from sweepedit.io.step_export import (
     closed_form_volume,
-    crosses_itself,
     export_step,
+    is_crossing,
     monte_carlo_volume,
     read_step,
+    self_interference,
     solid_volume,
 )
 
@@ -73,16 +74,6 @@ def _valid(shape) -> bool:
     return bool(BRepCheck_Analyzer(shape).IsValid())
 
 
-def _occ_alarm(shape) -> bool:
-    """Whether OpenCascade's check for boolean operations, self-interference included,
-    finds anything (the plain checker passes solids that cross themselves); the export's
-    step_export.crosses_itself dismisses its alarms of a face meeting itself at one point
-    of it, and a solid counts as crossing itself by that verdict."""
-    from OCP.BRepAlgoAPI import BRepAlgoAPI_Check
-
-    return not BRepAlgoAPI_Check(shape, False, True).IsValid()
-
-
 def export_one(prim: SweepPrimitive, folder: Path, truth: float | None) -> dict:
     """Export one primitive and read it back -> a row (truth: the expected volume)."""
     out = folder / "one.step"
@@ -97,8 +88,11 @@ def export_one(prim: SweepPrimitive, folder: Path, truth: float | None) -> dict:
     solids = read_step(out)
     row["solids"] = len(solids)
     row["valid"] = len(solids) == 1 and _valid(solids[0].shape)
-    row["occ_alarm"] = len(solids) == 1 and _occ_alarm(solids[0].shape)
-    row["crosses_itself"] = row["occ_alarm"] and crosses_itself(solids[0].shape)
+    # OpenCascade's self-interference check (the plain checker passes solids that cross
+    # themselves): its raw alarms, and whether one is a crossing as the export judges it
+    found = self_interference(solids[0].shape) if len(solids) == 1 else []
+    row["occ_alarm"] = bool(found)
+    row["crosses_itself"] = any(is_crossing(result) for result in found)
     if truth is None:
         truth = closed_form_volume(prim)
     row["volume_error"] = solid_volume(solids[0].shape, 1e-7) / truth - 1.0  # finer than the check

@@ -85,13 +85,11 @@ def _span_samples(knots: np.ndarray, per_span: int, last: bool) -> np.ndarray:
     return np.concatenate([*spans, inner[-1:]] if last else spans)
 
 
-def loft_samples(surface: SideSurface, per_span: int = LOFT_SAMPLES,
-                 ends_only: bool = False) -> np.ndarray:
-    """Points of the surface (Mt, Mθ, 3): rows along t from end to end (its two end
-    rings alone if ends_only: Mt = 2), columns once round (the patches one after the
-    other, each without its last column: the next one's first)."""
-    t = (surface.t_knots[[3, -4]] if ends_only
-         else _span_samples(surface.t_knots, per_span, last=True))
+def loft_samples(surface: SideSurface, per_span: int = LOFT_SAMPLES) -> np.ndarray:
+    """Points of the surface (Mt, Mθ, 3): rows along t from end to end (the first and
+    last rows are its end rings), columns once round (the patches one after the other,
+    each without its last column: the next one's first)."""
+    t = _span_samples(surface.t_knots, per_span, last=True)
     along = BSpline.design_matrix(t, surface.t_knots, 3).toarray()  # (Mt, Nt)
     columns = []
     for theta_knots, poles in surface.patches:
@@ -225,14 +223,15 @@ def loft_verdict(surface: SideSurface, planes: SlicingPlanes, per_span: int = LO
     in a curve that crosses itself), or neither can be told so (UNKNOWN: its height may
     turn back, or a level curve be simple but star-shaped about none of the points
     tried)."""
-    local = planes.to_local(loft_samples(surface, per_span))  # (Mt, Mθ, 3)
+    samples = loft_samples(surface, per_span)  # (Mt, Mθ, 3)
+    local = planes.to_local(samples)
     height = local[..., 0]
     if not (np.diff(height, axis=0) > 0.0).all():
         return LoftVerdict.UNKNOWN
     # The end rings bound the flat caps, each in its own plane (a slice, or a cap of the
     # primitive's that the slices do not parallel); no level below tests them, and a
     # small loop of one is a cap that crosses itself (balloondog.json's 8th, K = 8).
-    if _an_end_ring_crosses(_in_own_plane(loft_samples(surface, per_span, ends_only=True))):
+    if _an_end_ring_crosses(_in_own_plane(samples[[0, -1]])):
         return LoftVerdict.CROSSES
     rows, columns = height.shape
     levels = np.linspace(height.min(), height.max(), levels_per_row * rows + 2)[1:-1]

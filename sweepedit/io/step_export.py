@@ -832,19 +832,27 @@ def crosses_itself(shape: Any) -> bool:
     itself only where the two points of a meeting lie apart on it (_face_meets_itself):
     at a loft's short end edge the check also finds "curves" whose two points on the face
     are one (camel.json's 4th, glyph_G.json's 6th)."""
+    return any(is_crossing(result) for result in self_interference(shape))
+
+
+def self_interference(shape: Any) -> list[Any]:
+    """What OpenCascade's check for boolean operations finds where the shape meets
+    itself: its BRepAlgoAPI_Check results, none when it finds nothing. These are raw
+    alarms; is_crossing judges each (crosses_itself, both)."""
     from OCP.BRepAlgoAPI import BRepAlgoAPI_Check
 
     check = BRepAlgoAPI_Check()
     check.SetData(shape, False, True)  # self-interference only, not the small-edge test
     check.SetRunParallel(True)
     check.Perform()
-    if check.IsValid():
-        return False
-    for result in check.Result():
-        face = _face_alone(result)
-        if face is None or _face_meets_itself(face):
-            return True
-    return False
+    return [] if check.IsValid() else list(check.Result())
+
+
+def is_crossing(result: Any) -> bool:
+    """Whether a result of self_interference is a crossing: anything but one face
+    meeting itself only at points that are one point of it (_face_meets_itself)."""
+    face = _face_alone(result)
+    return face is None or _face_meets_itself(face)
 
 
 def _face_alone(result: Any) -> Any | None:
