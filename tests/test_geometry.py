@@ -285,3 +285,35 @@ def test_axis_that_folds_back_keeps_a_right_handed_frame() -> None:
     p = SweepPrimitive(cps[0], a=0.1, b=0.1, degree=2.0)
     mesh = sweep_mesh(p, 64, 32).to_trimesh()
     assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+
+
+def test_the_inside_kernel_holds_the_plane_offset_of_the_sweep_math() -> None:
+    # inside_kernel.py writes the axis point and unit tangent at t out for one point; it
+    # must give sweep.py's h(t) = (p - s(t)).T(t), at joints between segments, at the
+    # ends, and where the derivative vanishes (a cusp: the chord, then the first leg).
+    from sweepedit.geometry.inside_kernel import _plane_offset_at
+    from sweepedit.geometry.sweep import axis_points_tangents, bezier_segments
+
+    rng = np.random.default_rng(7)
+    axes = [rng.normal(0.0, 0.2, (n, 3)) for n in (3, 4, 6)]
+    axes.append(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.1, 0.0]]))  # s'(0) = 0
+    axes.append(np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [0.0, 0.0, 0.0]]))  # folds back
+    for cps in axes:
+        m = len(cps) - 2
+        t = np.concatenate([[0.0, 1.0], np.arange(1, m) / m, rng.uniform(0.0, 1.0, 40)])
+        points = rng.normal(0.0, 0.3, (len(t), 3))
+        centres, tangents = (a[0] for a in axis_points_tangents(cps[None], t))
+        expected = np.einsum("ij,ij->i", points - centres, tangents)
+        p0, p1, p2 = (np.ascontiguousarray(a[0]) for a in bezier_segments(cps[None]))
+        got = np.array([_plane_offset_at(*p, p0, p1, p2, tk) for p, tk in zip(points, t,
+                                                                              strict=True)])
+        assert np.allclose(got, expected, rtol=0.0, atol=1e-12)
+
+
+def test_the_inside_test_wants_points_as_rows_of_three() -> None:
+    p = SweepPrimitive([[0, 0, -0.3], [0, 0, 0], [0, 0, 0.3]], a=0.2, b=0.1, degree=2.0)
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        inside_primitive(np.zeros((4, 2)), p)
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        inside_union(np.zeros(3), [p])
+    assert inside_primitive(np.zeros((0, 3)), p).shape == (0,)

@@ -3,7 +3,9 @@
 A point p is inside a primitive when, for some t in [0, 1], p lies in the profile plane
 at t (h(t) = (p - s(t)).T(t) = 0) and its in-plane coordinates, divided by f(t), fall
 inside the superellipse. h is sampled densely, its sign changes are bracketed and
-refined by regula falsi on the exact curve, and every root is tested.
+refined by regula falsi on the exact curve, and every root is tested. The search for the
+roots is one compiled loop per point (inside_kernel.py); the frames at the roots and the
+profile are sweep.py's.
 """
 
 from __future__ import annotations
@@ -14,10 +16,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from sweepedit.geometry.inside_kernel import profile_plane_roots
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import (
     axis_frames,
     axis_points_tangents,
+    bezier_segments,
     scaling_factor,
     superellipse_level,
 )
@@ -25,14 +29,8 @@ from sweepedit.geometry.sweep import (
 T_SAMPLES = 256
 REFINE_STEPS = 2
 _CHUNK = 1 << 15
-# Every how many axis samples the tube filter tests against (see _inside_primitive).
+# Every how many axis samples the tube filter tests against (see _make_axis_table).
 _COARSE = 8
-
-
-def _plane_offset(points: np.ndarray, cps: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """h(t) for paired points (R, 3) and parameters t (R,) -> (R,)."""
-    centres, tangents = axis_points_tangents(cps, t)
-    return np.einsum("ij,ij->i", points - centres[0], tangents[0])
 
 
 def _bounding_box(cps: np.ndarray, profile: np.ndarray, scaling: np.ndarray,
@@ -47,18 +45,18 @@ def _bounding_box(cps: np.ndarray, profile: np.ndarray, scaling: np.ndarray,
     return centres.min(axis=0) - pad, centres.max(axis=0) + pad
 
 
-def _as_points(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """points (N, 3) as float64, and its columns (3, N) contiguous: the box tests run on
-    the columns, several times faster than on the strided (N, 3) layout."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    return points, np.ascontiguousarray(points.T)
+def _as_points(points: np.ndarray) -> np.ndarray:
+    """points (N, 3) as contiguous float64; a ValueError for any other shape."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must be an (N, 3) array, not {points.shape}")
+    return points
 
 
 def inside_primitive(points: np.ndarray, primitive: SweepPrimitive,
                      t_samples: int = T_SAMPLES) -> np.ndarray:
     """Exact occupancy of one primitive: points (N, 3) -> bool (N,)."""
-    points, columns = _as_points(points)
-    return _inside_primitive(points, columns, primitive, t_samples)
+    return _inside_primitive(_as_points(points), primitive, t_samples)
 
 
 class _AxisTable(NamedTuple):
@@ -71,14 +69,14 @@ class _AxisTable(NamedTuple):
     scaling: np.ndarray  # (1, k)
     t: np.ndarray  # (T,) the axis samples
     centres: np.ndarray  # (T, 3)
-    tangents: np.ndarray  # (T, 3)
+    tangent_columns: np.ndarray  # (3, T) the tangents, a row per coordinate
     offsets: np.ndarray  # (T,) s(t).T(t)
     lo: np.ndarray  # (3,) a box that holds the solid
     hi: np.ndarray  # (3,)
     coarse: np.ndarray  # (C, 3) every _COARSE-th axis sample
     bound: float  # how far from a coarse sample a point inside can be
     reach2: np.ndarray  # (T-1,) squared reach of each interval of samples
-    plane_mat: np.ndarray  # (4, T) float32: [p, 1] @ plane_mat is h at every sample
+    segments: tuple[np.ndarray, np.ndarray, np.ndarray]  # the Bezier segments, each (m, 3)
 
 
 class _Arrays:
@@ -106,82 +104,59 @@ def _axis_table(primitive: SweepPrimitive, t_samples: int) -> _AxisTable:
 def _make_axis_table(arrays: _Arrays, t_samples: int) -> _AxisTable:
     cps, profile, scaling = arrays.arrays
     t = np.linspace(0.0, 1.0, t_samples)
-    centres, tangents = (a[0] for a in axis_points_tangents(cps, t))  # (T, 3)
+    centres, tangents = (np.ascontiguousarray(a[0]) for a in axis_points_tangents(cps, t))
     lo, hi = _bounding_box(cps, profile, scaling, t, centres)
     # Only points within the largest profile radius (plus the sample gap) of the axis
     # can be inside: this cuts the box down to a tube before the dense work. The tube is
     # tested against every COARSE-th axis sample, widened by the most any sample lies
-    # from its nearest coarse one (half the polyline between two coarse samples): one
-    # small matmul, several times cheaper than a k-d tree of all samples.
+    # from its nearest coarse one (half the polyline between two coarse samples).
     gap = np.linalg.norm(np.diff(centres, axis=0), axis=1)  # (T-1,)
     reach = scaling_factor(scaling, t)[0] * np.hypot(profile[0, 0], profile[0, 1])
     coarse_at = np.unique(np.append(np.arange(0, t_samples, _COARSE), t_samples - 1))
     arc = np.concatenate([[0.0], np.cumsum(gap)])
     widen = float(np.max(np.diff(arc[coarse_at]))) / 2.0
-    offsets = np.einsum("ij,ij->i", centres, tangents)
-    # h at every axis sample comes out of one float32 matmul, with homogeneous
-    # coordinates: [p, 1] @ [T; -s.T]. float32 only brackets the roots; they are refined
-    # in float64. A plane crossing at t can only be inside if p is within reach of s(t):
-    # the largest profile radius there plus the gap to the next sample.
+    # A plane crossing at t can only be inside if p is within reach of s(t): the
+    # largest profile radius there plus the gap to the next sample.
     return _AxisTable(
-        cps, profile, scaling, t, centres, tangents, offsets, lo, hi, centres[coarse_at],
+        cps, profile, scaling, t, centres, np.ascontiguousarray(tangents.T),
+        np.einsum("ij,ij->i", centres, tangents), lo, hi, np.ascontiguousarray(centres[coarse_at]),
         float(reach.max() + gap.max()) + widen + 1e-9,
         (np.maximum(reach[:-1], reach[1:]) + gap) ** 2,
-        np.vstack([tangents.T, -offsets[None, :]]).astype(np.float32))
+        tuple(np.ascontiguousarray(a[0]) for a in bezier_segments(cps)))
 
 
-def _inside_primitive(points: np.ndarray, columns: np.ndarray, primitive: SweepPrimitive,
-                      t_samples: int, todo: np.ndarray | None = None) -> np.ndarray:
-    """inside_primitive of points (N, 3) with their columns (3, N); only where todo (N,)
-    bool is True, if given (False elsewhere)."""
+def _inside_primitive(points: np.ndarray, primitive: SweepPrimitive, t_samples: int,
+                      todo: np.ndarray | None = None) -> np.ndarray:
+    """inside_primitive of points (N, 3), contiguous float64; only where todo (N,) bool
+    is True, if given (False elsewhere)."""
     table = _axis_table(primitive, t_samples)
     result = np.zeros(len(points), dtype=bool)
-    box = np.ones(len(points), dtype=bool) if todo is None else todo.copy()
-    for axis in range(3):
-        box &= columns[axis] >= table.lo[axis]
-        box &= columns[axis] <= table.hi[axis]
-    in_box = np.flatnonzero(box)
-    coarse = table.coarse  # (C, 3)
-    p_box = points[in_box]
-    d2 = ((p_box * p_box).sum(axis=1)[:, None] - 2.0 * (p_box @ coarse.T)
-          + (coarse * coarse).sum(axis=1)[None, :])
-    candidates = in_box[d2.min(axis=1) <= table.bound * table.bound]
-    centres, tangents, offsets, t = table.centres, table.tangents, table.offsets, table.t
-    for start in range(0, len(candidates), _CHUNK):
-        idx = candidates[start:start + _CHUNK]
-        p = points[idx]
-        h = np.hstack([p, np.ones((len(idx), 1))]).astype(np.float32) @ table.plane_mat
-        sign = h >= 0.0
-        # One flat index list, split after: several times faster than a 2-D nonzero.
-        rows, cols = np.divmod(np.flatnonzero(sign[:, :-1] != sign[:, 1:]), t_samples - 1)
-        d = p[rows] - centres[cols]
-        near = np.einsum("ij,ij->i", d, d) <= table.reach2[cols]
-        rows, cols = rows[near], cols[near]
+    todo = np.ones(len(points), dtype=bool) if todo is None else todo
+    for start in range(0, len(points), _CHUNK):
+        chunk = slice(start, start + _CHUNK)
+        rows, roots = _profile_plane_roots(points[chunk], todo[chunk], table)
         if rows.size == 0:
             continue
-        pr = p[rows]
-        # h at the bracket's ends in float64, from the samples' table (the curve there).
-        h0 = np.einsum("ij,ij->i", pr, tangents[cols]) - offsets[cols]
-        h1 = np.einsum("ij,ij->i", pr, tangents[cols + 1]) - offsets[cols + 1]
-        roots = _refine_roots(pr, table.cps, t[cols], t[cols + 1], h0, h1)
-        hit = _inside_profile_at(pr, table.cps, table.profile, table.scaling, roots)
-        result[idx[rows[hit]]] = True
+        hit = _inside_profile_at(points[chunk][rows], table.cps, table.profile,
+                                 table.scaling, roots)
+        result[start + rows[hit]] = True
     return result
 
 
-def _refine_roots(p: np.ndarray, cps: np.ndarray, t0: np.ndarray, t1: np.ndarray,
-                  h0: np.ndarray, h1: np.ndarray) -> np.ndarray:
-    """Roots of h in brackets [t0, t1] (R,) by regula falsi on the exact curve."""
-    for _ in range(REFINE_STEPS):
-        tm = t0 + (t1 - t0) * h0 / np.where(h0 - h1 == 0.0, 1.0, h0 - h1)
-        tm = np.clip(tm, np.minimum(t0, t1), np.maximum(t0, t1))
-        hm = _plane_offset(p, cps, tm)
-        left = np.sign(hm) == np.sign(h0)
-        t0 = np.where(left, tm, t0)
-        h0 = np.where(left, hm, h0)
-        t1 = np.where(left, t1, tm)
-        h1 = np.where(left, h1, hm)
-    return t0 + (t1 - t0) * h0 / np.where(h0 - h1 == 0.0, 1.0, h0 - h1)
+def _profile_plane_roots(points: np.ndarray, todo: np.ndarray, table: _AxisTable
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """inside_kernel.profile_plane_roots of points (N, 3) where todo (N,) -> the
+    points' indices (R,) and the roots (R,)."""
+    capacity = 2 * len(points) + 64  # most points have one root or none
+    while True:
+        rows, roots = np.empty(capacity, dtype=np.int64), np.empty(capacity)
+        count = profile_plane_roots(points, todo, table.lo, table.hi, table.coarse,
+                                    table.bound, table.centres, table.tangent_columns,
+                                    table.offsets, table.reach2, table.t,
+                                    *table.segments, REFINE_STEPS, rows, roots)
+        if count <= capacity:
+            return rows[:count], roots[:count]
+        capacity = count
 
 
 def _inside_profile_at(p: np.ndarray, cps: np.ndarray, profile: np.ndarray,
@@ -198,22 +173,22 @@ def _inside_profile_at(p: np.ndarray, cps: np.ndarray, profile: np.ndarray,
 def inside_primitives(points: np.ndarray, primitives: Sequence[SweepPrimitive],
                       t_samples: int = T_SAMPLES) -> np.ndarray:
     """Exact occupancy of each primitive: points (N, 3) -> bool (K, N)."""
-    points, columns = _as_points(points)
+    points = _as_points(points)
     out = np.zeros((len(primitives), len(points)), dtype=bool)
     for k, prim in enumerate(primitives):
-        out[k] = _inside_primitive(points, columns, prim, t_samples)
+        out[k] = _inside_primitive(points, prim, t_samples)
     return out
 
 
 def inside_union(points: np.ndarray, primitives: Sequence[SweepPrimitive],
                  t_samples: int = T_SAMPLES) -> np.ndarray:
     """Exact occupancy of the union: points (N, 3) -> bool (N,)."""
-    points, columns = _as_points(points)
+    points = _as_points(points)
     result = np.zeros(len(points), dtype=bool)
     for prim in primitives:
         if result.all():
             break
-        result |= _inside_primitive(points, columns, prim, t_samples, todo=~result)
+        result |= _inside_primitive(points, prim, t_samples, todo=~result)
     return result
 
 
