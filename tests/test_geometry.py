@@ -317,3 +317,51 @@ def test_the_inside_test_wants_points_as_rows_of_three() -> None:
     with pytest.raises(ValueError, match=r"\(N, 3\)"):
         inside_union(np.zeros(3), [p])
     assert inside_primitive(np.zeros((0, 3)), p).shape == (0,)
+
+
+@pytest.mark.parametrize("degree", [0.3, 0.7, 1.0, 1.9, 2.0, 2.6, 5.0])
+def test_the_profiles_inscribed_and_circumscribed_circles_hold_it(degree: float) -> None:
+    # profile_radii2: every point of the superellipse lies between the two circles, and
+    # for a = b the profile touches both (at its axes and its diagonals), but for what
+    # the inner one keeps to spare for superellipse_level's clip (0.3 % at d = 0.3).
+    from sweepedit.geometry.inside import profile_radii2
+    from sweepedit.geometry.sweep import superellipse
+
+    theta = np.linspace(0.0, 2.0 * np.pi, 4001)
+    for a, b in ((0.05, 0.05), (0.03, 0.08), (0.1, 0.02)):
+        inside, outside = profile_radii2(a, b, degree)
+        x, y = superellipse(theta, np.array([[a, b, degree]]))
+        r2 = x[0] ** 2 + y[0] ** 2
+        assert inside < r2.min() and r2.max() < outside
+        if a == b:
+            assert r2.min() == pytest.approx(inside, rel=5e-3)
+            assert r2.max() == pytest.approx(outside, rel=1e-6)
+    assert profile_radii2(0.05, 0.05, float("nan")) == (-1.0, np.inf)
+
+
+def test_the_inside_test_decides_by_radius_as_the_profile_test_would(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # The root search settles a point by its radius in the plane alone where that is
+    # inside the inscribed circle or outside the circumscribed one; the same points with
+    # every root left to the profile test (sweep.py's frames) must come out the same,
+    # near the boundary too, for round, pinched and boxy profiles, folding or not.
+    from sweepedit.geometry import inside
+
+    rng = np.random.default_rng(11)
+    cps = np.array([[0.0, 0.0, -0.2], [0.25, 0.0, 0.0], [0.0, 0.05, 0.2], [0.1, 0.2, 0.3]])
+    prims = [SweepPrimitive(cps, a=a, b=b, degree=d, scaling=(0.3, -0.4))
+             for a, b, d in ((0.05, 0.05, 2.0), (0.04, 0.09, 0.3), (0.08, 0.03, 5.0),
+                             (0.2, 0.12, 1.3))]
+    assert folds_onto_itself(prims[-1]) and not folds_onto_itself(prims[0])
+    points = rng.uniform(-0.35, 0.45, (60_000, 3))
+    near = np.concatenate([sweep_mesh(p).vertices for p in prims])  # on the boundaries
+    points = np.concatenate([points, near, near * (1 + 1e-7), near * (1 - 1e-7)])
+    by_radius = [inside_primitive(points, p) for p in prims]
+    inside._make_axis_table.cache_clear()
+    monkeypatch.setattr(inside, "profile_radii2", lambda a, b, d: (-1.0, np.inf))
+    try:
+        for p, got in zip(prims, by_radius, strict=True):
+            assert np.array_equal(inside_primitive(points, p), got)
+            assert 0.01 < got.mean() < 0.5
+    finally:
+        inside._make_axis_table.cache_clear()

@@ -77,6 +77,22 @@ class _AxisTable(NamedTuple):
     bound: float  # how far from a coarse sample a point inside can be
     reach2: np.ndarray  # (T-1,) squared reach of each interval of samples
     segments: tuple[np.ndarray, np.ndarray, np.ndarray]  # the Bezier segments, each (m, 3)
+    radii2: tuple[float, float]  # squared in-plane radii surely inside, surely outside
+
+
+def profile_radii2(a: float, b: float, d: float) -> tuple[float, float]:
+    """Squared radii (over f) within which every point of a profile plane is inside the
+    superellipse |x/a|^d + |y/b|^d <= 1 as superellipse_level computes it (its clip
+    included), and beyond which every point is outside, each with 1e-9 of the level to
+    spare: the inscribed and circumscribed circles, m min(1, e) and M max(1, e) with
+    m, M = min, max(a, b) and e = 2^(1/2 - 1/d) (|cos|^d + |sin|^d lies between 1 and
+    2^(1 - d/2)). (-1, inf), which decide nothing, for a profile outside its ranges."""
+    if not (a > 0.0 and b > 0.0 and 0.1 <= d <= 20.0):
+        return -1.0, np.inf
+    e = 2.0 ** (0.5 - 1.0 / d)
+    spare = 1.0 - 1e-9 - 2.0 * 1e-12 ** d  # superellipse_level clips each term at 1e-12^d
+    inside = (min(a, b) * min(1.0, e)) ** 2 * spare ** (2.0 / d) if spare > 0.0 else -1.0
+    return inside, (max(a, b) * max(1.0, e)) ** 2 * (1.0 + 1e-9) ** (2.0 / d)
 
 
 class _Arrays:
@@ -122,7 +138,8 @@ def _make_axis_table(arrays: _Arrays, t_samples: int) -> _AxisTable:
         np.einsum("ij,ij->i", centres, tangents), lo, hi, np.ascontiguousarray(centres[coarse_at]),
         float(reach.max() + gap.max()) + widen + 1e-9,
         (np.maximum(reach[:-1], reach[1:]) + gap) ** 2,
-        tuple(np.ascontiguousarray(a[0]) for a in bezier_segments(cps)))
+        tuple(np.ascontiguousarray(a[0]) for a in bezier_segments(cps)),
+        profile_radii2(*(float(v) for v in profile[0])))
 
 
 def _inside_primitive(points: np.ndarray, primitive: SweepPrimitive, t_samples: int,
@@ -134,7 +151,7 @@ def _inside_primitive(points: np.ndarray, primitive: SweepPrimitive, t_samples: 
     todo = np.ones(len(points), dtype=bool) if todo is None else todo
     for start in range(0, len(points), _CHUNK):
         chunk = slice(start, start + _CHUNK)
-        rows, roots = _profile_plane_roots(points[chunk], todo[chunk], table)
+        rows, roots = _profile_plane_roots(points[chunk], todo[chunk], result[chunk], table)
         if rows.size == 0:
             continue
         hit = _inside_profile_at(points[chunk][rows], table.cps, table.profile,
@@ -143,17 +160,19 @@ def _inside_primitive(points: np.ndarray, primitive: SweepPrimitive, t_samples: 
     return result
 
 
-def _profile_plane_roots(points: np.ndarray, todo: np.ndarray, table: _AxisTable
-                         ) -> tuple[np.ndarray, np.ndarray]:
-    """inside_kernel.profile_plane_roots of points (N, 3) where todo (N,) -> the
-    points' indices (R,) and the roots (R,)."""
+def _profile_plane_roots(points: np.ndarray, todo: np.ndarray, inside: np.ndarray,
+                         table: _AxisTable) -> tuple[np.ndarray, np.ndarray]:
+    """inside_kernel.profile_plane_roots of points (N, 3) where todo (N,): sets inside
+    (N,) where a root decides it by its radius alone, and returns the others' points'
+    indices (R,) and roots (R,) for the profile test."""
     capacity = 2 * len(points) + 64  # most points have one root or none
     while True:
         rows, roots = np.empty(capacity, dtype=np.int64), np.empty(capacity)
         count = profile_plane_roots(points, todo, table.lo, table.hi, table.coarse,
                                     table.bound, table.centres, table.tangent_columns,
                                     table.offsets, table.reach2, table.t,
-                                    *table.segments, REFINE_STEPS, rows, roots)
+                                    *table.segments, REFINE_STEPS, table.scaling[0],
+                                    *table.radii2, inside, rows, roots)
         if count <= capacity:
             return rows[:count], roots[:count]
         capacity = count

@@ -52,6 +52,32 @@ def _plane_offset_at(px: float, py: float, pz: float, p0: np.ndarray, p1: np.nda
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _in_plane_radius2(px: float, py: float, pz: float, p0: np.ndarray, p1: np.ndarray,
+                      p2: np.ndarray, scaling: np.ndarray, t: float) -> float:
+    """The squared distance of the point from the axis point s(t) within the profile
+    plane at t, divided by f(t)^2 (inf where f(t) <= 0): x^2 + y^2 of the profile test,
+    whatever the frame's turn about the tangent."""
+    m = p0.shape[0]
+    tm = min(max(t, 0.0), 1.0) * m
+    j = min(max(math.floor(tm), 0.0), m - 1.0)
+    u = tm - j
+    k = int(j)
+    w0, w1, w2 = (1.0 - u) ** 2, 2.0 * u * (1.0 - u), u * u
+    rx = px - (w0 * p0[k, 0] + w1 * p1[k, 0] + w2 * p2[k, 0])
+    ry = py - (w0 * p0[k, 1] + w1 * p1[k, 1] + w2 * p2[k, 1])
+    rz = pz - (w0 * p0[k, 2] + w1 * p1[k, 2] + w2 * p2[k, 2])
+    h = _plane_offset_at(px, py, pz, p0, p1, p2, t)
+    f = 1.0
+    power = 1.0
+    for i in range(scaling.shape[0]):
+        power *= t
+        f += scaling[i] * power
+    if f <= 0.0:
+        return math.inf
+    return max(rx * rx + ry * ry + rz * rz - h * h, 0.0) / (f * f)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _regula_falsi(px: float, py: float, pz: float, p0: np.ndarray, p1: np.ndarray,
                   p2: np.ndarray, t0: float, t1: float, h0: float, h1: float,
                   steps: int) -> float:
@@ -76,15 +102,21 @@ def profile_plane_roots(points: np.ndarray, todo: np.ndarray, lo: np.ndarray,
                         centres: np.ndarray, tangent_columns: np.ndarray,
                         offsets: np.ndarray, reach2: np.ndarray, t: np.ndarray,
                         p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, steps: int,
-                        rows: np.ndarray, roots: np.ndarray) -> int:
+                        scaling: np.ndarray, inside_r2: float, outside_r2: float,
+                        inside: np.ndarray, rows: np.ndarray, roots: np.ndarray) -> int:
     """Every t where a point's profile plane may hold it: points (N, 3) where todo (N,)
     is True, inside the box lo..hi (3,), within `bound` of a coarse axis sample
     (coarse (C, 3)), at each sign change of h between the axis samples t (T,)
     (centres (T, 3), tangent_columns (3, T), offsets (T,) = s.T) within reach (reach2
     (T - 1,), squared, from the first sample), refined on the exact axis (Bezier
-    segments p0, p1, p2 (m, 3)). Writes the point's index and the root to rows, roots
-    (capacity V) and returns how many there are: beyond V only the count goes on, and
-    the caller asks again with room."""
+    segments p0, p1, p2 (m, 3)).
+
+    A root where the point's squared radius in the plane over f(t)^2 (scaling (k,): f's
+    coefficients) is at most inside_r2 holds it inside the profile whatever its angle:
+    inside[q] is set and its other roots dropped. One where it is over outside_r2 cannot
+    hold it. The others are left to the profile test: the point's index and the root
+    are written to rows, roots (capacity V), and how many there are is returned; beyond
+    V only the count goes on, and the caller asks again with room."""
     n_points, n_t, n_coarse = points.shape[0], t.shape[0], coarse.shape[0]
     capacity = rows.shape[0]
     bound2 = bound * bound
@@ -107,15 +139,23 @@ def profile_plane_roots(points: np.ndarray, todo: np.ndarray, lo: np.ndarray,
             continue
         for s in range(n_t):  # one vectorised loop: cheaper than skipping far samples
             h[s] = x * tx[s] + y * ty[s] + z * tz[s] - offsets[s]
+        first = count  # this point's roots start here
         for s in range(n_t - 1):
             if (h[s] >= 0.0) == (h[s + 1] >= 0.0):
                 continue
             dx, dy, dz = x - centres[s, 0], y - centres[s, 1], z - centres[s, 2]
             if dx * dx + dy * dy + dz * dz > reach2[s]:
                 continue
+            root = _regula_falsi(x, y, z, p0, p1, p2, t[s], t[s + 1], h[s], h[s + 1], steps)
+            r2 = _in_plane_radius2(x, y, z, p0, p1, p2, scaling, root)
+            if r2 <= inside_r2:
+                inside[q] = True
+                count = first
+                break
+            if r2 > outside_r2:
+                continue
             if count < capacity:
                 rows[count] = q
-                roots[count] = _regula_falsi(x, y, z, p0, p1, p2, t[s], t[s + 1], h[s],
-                                             h[s + 1], steps)
+                roots[count] = root
             count += 1
     return count
