@@ -7,9 +7,11 @@ As numpy array operations over all points this took 1.7 ms a call whatever its s
 about 2 µs a point, and STEP export's slicer calls the test ~65 times per folding
 primitive (BENCHMARKS.md, STEP export). numba; compiled on first use and cached on disk.
 
-The axis point and unit tangent at t (_plane_offset_at) are sweep.py's
-_points_and_tangents written out for one point; tests/test_inside.py holds the two to
-each other. Everything else (the frames at the roots and the profile) stays in sweep.py.
+The axis point and unit tangent at t (_axis_at) are sweep.py's _points_and_tangents
+written out for one point; tests/test_geometry.py holds the two to each other. The
+frames at the roots and the profile test stay in sweep.py; a root is settled here only
+by the point's radius in its plane, within the profile's inscribed circle or beyond its
+circumscribed one (inside.profile_radii2).
 """
 
 from __future__ import annotations
@@ -21,11 +23,11 @@ import numpy as np
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _plane_offset_at(px: float, py: float, pz: float, p0: np.ndarray, p1: np.ndarray,
-                     p2: np.ndarray, t: float) -> float:
-    """h(t) for the point (px, py, pz) on the axis whose Bezier segments are p0, p1, p2
-    (m, 3) (sweep.bezier_segments): the tangent is the derivative's direction, else the
-    chord's, else the first leg's (sweep._segment_tangent)."""
+def _axis_at(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, t: float
+             ) -> tuple[float, float, float, float, float, float]:
+    """The axis point s(t) and unit tangent T(t) of the axis whose Bezier segments are
+    p0, p1, p2 (m, 3) (sweep.bezier_segments): the tangent is the derivative's
+    direction, else the chord's, else the first leg's (sweep._segment_tangent)."""
     m = p0.shape[0]
     tm = min(max(t, 0.0), 1.0) * m
     j = min(max(math.floor(tm), 0.0), m - 1.0)
@@ -35,9 +37,6 @@ def _plane_offset_at(px: float, py: float, pz: float, p0: np.ndarray, p1: np.nda
     a0x, a0y, a0z = p0[k, 0], p0[k, 1], p0[k, 2]
     a1x, a1y, a1z = p1[k, 0], p1[k, 1], p1[k, 2]
     a2x, a2y, a2z = p2[k, 0], p2[k, 1], p2[k, 2]
-    sx = w0 * a0x + w1 * a1x + w2 * a2x
-    sy = w0 * a0y + w1 * a1y + w2 * a2y
-    sz = w0 * a0z + w1 * a1z + w2 * a2z
     vx = (1.0 - u) * (a1x - a0x) + u * (a2x - a1x)
     vy = (1.0 - u) * (a1y - a0y) + u * (a2y - a1y)
     vz = (1.0 - u) * (a1z - a0z) + u * (a2z - a1z)
@@ -48,7 +47,17 @@ def _plane_offset_at(px: float, py: float, pz: float, p0: np.ndarray, p1: np.nda
         if vv < 1e-18:
             vx, vy, vz = a1x - a0x, a1y - a0y, a1z - a0z
             vv = vx * vx + vy * vy + vz * vz
-    return ((px - sx) * vx + (py - sy) * vy + (pz - sz) * vz) / math.sqrt(max(vv, 1e-18))
+    norm = math.sqrt(max(vv, 1e-18))
+    return (w0 * a0x + w1 * a1x + w2 * a2x, w0 * a0y + w1 * a1y + w2 * a2y,
+            w0 * a0z + w1 * a1z + w2 * a2z, vx / norm, vy / norm, vz / norm)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _plane_offset_at(px: float, py: float, pz: float, p0: np.ndarray, p1: np.ndarray,
+                     p2: np.ndarray, t: float) -> float:
+    """h(t) = (p - s(t)).T(t) for the point (px, py, pz) (_axis_at)."""
+    sx, sy, sz, tx, ty, tz = _axis_at(p0, p1, p2, t)
+    return (px - sx) * tx + (py - sy) * ty + (pz - sz) * tz
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -57,16 +66,9 @@ def _in_plane_radius2(px: float, py: float, pz: float, p0: np.ndarray, p1: np.nd
     """The squared distance of the point from the axis point s(t) within the profile
     plane at t, divided by f(t)^2 (inf where f(t) <= 0): x^2 + y^2 of the profile test,
     whatever the frame's turn about the tangent."""
-    m = p0.shape[0]
-    tm = min(max(t, 0.0), 1.0) * m
-    j = min(max(math.floor(tm), 0.0), m - 1.0)
-    u = tm - j
-    k = int(j)
-    w0, w1, w2 = (1.0 - u) ** 2, 2.0 * u * (1.0 - u), u * u
-    rx = px - (w0 * p0[k, 0] + w1 * p1[k, 0] + w2 * p2[k, 0])
-    ry = py - (w0 * p0[k, 1] + w1 * p1[k, 1] + w2 * p2[k, 1])
-    rz = pz - (w0 * p0[k, 2] + w1 * p1[k, 2] + w2 * p2[k, 2])
-    h = _plane_offset_at(px, py, pz, p0, p1, p2, t)
+    sx, sy, sz, tx, ty, tz = _axis_at(p0, p1, p2, t)
+    rx, ry, rz = px - sx, py - sy, pz - sz
+    h = rx * tx + ry * ty + rz * tz
     f = 1.0
     power = 1.0
     for i in range(scaling.shape[0]):
