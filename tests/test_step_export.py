@@ -423,12 +423,16 @@ def test_a_sweep_that_comes_back_onto_itself_is_refused(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
-@needs_occ
-def test_a_mildly_folding_primitive_is_built_to_its_true_volume(tmp_path: Path) -> None:
-    # a short, tightly bent primitive of an official SweepNet fit (73.txt, primitive 1)
-    prim = SweepPrimitive([[-0.0739, -0.2348, -0.2147], [-0.0983, -0.2846, -0.1878],
+def _knuckle() -> SweepPrimitive:
+    """A short, tightly bent primitive of an official SweepNet fit (73.txt, primitive 1)."""
+    return SweepPrimitive([[-0.0739, -0.2348, -0.2147], [-0.0983, -0.2846, -0.1878],
                            [-0.0453, -0.1523, 0.0022]], a=0.0379, b=0.0399, degree=1.8433,
                           scaling=(0.4226, 0.4521), name="knuckle")
+
+
+@needs_occ
+def test_a_mildly_folding_primitive_is_built_to_its_true_volume(tmp_path: Path) -> None:
+    prim = _knuckle()
     assert folds_onto_itself(prim)
     out = tmp_path / "fold.step"
     export_step(Abstraction([prim]), out)
@@ -464,16 +468,9 @@ def _side_poles(shape) -> list[np.ndarray]:
     return out
 
 
-def _knuckle() -> SweepPrimitive:
-    return SweepPrimitive([[-0.0739, -0.2348, -0.2147], [-0.0983, -0.2846, -0.1878],
-                           [-0.0453, -0.1523, 0.0022]], a=0.0379, b=0.0399, degree=1.8433,
-                          scaling=(0.4226, 0.4521), name="knuckle")
-
-
 @needs_occ
 def test_a_folding_solid_that_opencascade_checks_is_checked_as_it_reads_back(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from sweepedit.geometry.loft import LoftVerdict
     from sweepedit.io import step_export
 
     # Where the loft's own test cannot tell, the solid is checked for crossing itself

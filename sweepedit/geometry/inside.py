@@ -86,8 +86,9 @@ def profile_radii2(a: float, b: float, d: float) -> tuple[float, float]:
     included), and beyond which every point is outside, each with 1e-9 of the level to
     spare: the inscribed and circumscribed circles, m min(1, e) and M max(1, e) with
     m, M = min, max(a, b) and e = 2^(1/2 - 1/d) (|cos|^d + |sin|^d lies between 1 and
-    2^(1 - d/2)). (-1, inf), which decide nothing, for a profile outside its ranges."""
-    if not (a > 0.0 and b > 0.0 and 0.1 <= d <= 20.0):
+    2^(1 - d/2)). (-1, inf), which decide nothing, unless a, b and d are finite and
+    positive."""
+    if not (0.0 < a < np.inf and 0.0 < b < np.inf and 0.0 < d < np.inf):
         return -1.0, np.inf
     e = 2.0 ** (0.5 - 1.0 / d)
     spare = 1.0 - 1e-9 - 2.0 * 1e-12 ** d  # superellipse_level clips each term at 1e-12^d

@@ -8,7 +8,9 @@ about 2 µs a point, and STEP export's slicer calls the test ~65 times per foldi
 primitive (BENCHMARKS.md, STEP export). numba; compiled on first use and cached on disk.
 
 The axis point and unit tangent at t (_axis_at) are sweep.py's _points_and_tangents
-written out for one point; tests/test_geometry.py holds the two to each other. The
+written out for one point, and f(t) (_in_plane_radius2) its scaling_factor;
+tests/test_geometry.py holds the first to sweep.py's h(t), and the inside test with and
+without the radius shortcut to each other. The
 frames at the roots and the profile test stay in sweep.py; a root is settled here only
 by the point's radius in its plane, within the profile's inscribed circle or beyond its
 circumscribed one (inside.profile_radii2).

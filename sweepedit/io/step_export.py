@@ -165,7 +165,7 @@ _GAUSS = np.polynomial.legendre.leggauss(48)
 
 Progress = Callable[[float, str], None]
 # What a solid read back from its file is checked for besides its volume (_read_back_checked).
-ReadBackCheck = Literal["volume", "validity", "crossing"]
+ReadBackCheck = Literal["validity", "crossing"]
 Cancelled = Callable[[], bool]
 
 
