@@ -41,8 +41,10 @@ class StepExportThread(QThread):
 
     def run(self) -> None:  # in the worker thread
         from sweepedit.io.step_export import ExportCancelledError, export_step
+        from sweepedit.io.step_workers import start_helper
 
         lower_thread_priority()
+        start_helper()  # kept for the next exports: folding primitives built on two cores
         try:
             report = export_step(self._abstraction, self._path, union=self._union,
                                  original_frame=self._original_frame,

@@ -73,6 +73,7 @@ from sweepedit.geometry.sweep import (
     superellipse,
 )
 from sweepedit.io.params import atomic_write_bytes, require_folder
+from sweepedit.io.step_workers import build_all
 
 STEP_FORMATS = (".step", ".stp")
 CAD_MISSING = "STEP export needs the optional 'cad' extra: pip install 'sweepedit[cad]'"
@@ -1427,13 +1428,20 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
             raise ExportCancelledError()
         report(done / (len(chosen) + (2 if union else 0) + 1), text)
 
-    solids, seconds, builds = [], [], []
-    for done, (i, prim) in enumerate(chosen):
-        step(done, f"building {_describe(i, prim)}")
-        begun = time.perf_counter()
-        builds.append(primitive_solids(prim, i, normalization))  # others kept for a union
-        solids.append(next(builds[-1]))
-        seconds.append(time.perf_counter() - begun)
+    for i, prim in chosen:
+        prim.validate(i)  # every bad parameter before any work
+    # A union may want other solids of a primitive whose sections cross (_OtherSolids):
+    # the search goes on from the first where that was built here, and starts again,
+    # skipping the first, where the helper built it.
+    searches = [primitive_solids(p, i, normalization) for i, p in chosen]
+    built = build_all(chosen, normalization, lambda k: next(searches[k]),
+                      [sections_cross(p) for _, p in chosen],
+                      lambda k, done: step(done, f"building {_describe(*chosen[k])}"),
+                      lambda done: step(done, "building the solids"))
+    solids = [solid for solid, _, _ in built]
+    seconds = [took for _, took, _ in built]
+    builds = [search if here else islice(primitive_solids(p, i, normalization), 1, None)
+              for search, (_, _, here), (i, p) in zip(searches, built, chosen, strict=True)]
     if union:
         data = _union_bytes(solids, [p for _, p in chosen], [_describe(i, p) for i, p in chosen],
                             builds, seconds, path, normalization,
