@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from crossing import CROSSING
 
 from sweepedit.errors import SweepeditError
 from sweepedit.geometry.model import Abstraction, SweepPrimitive
@@ -29,18 +30,7 @@ needs_occ = pytest.mark.skipif(importlib.util.find_spec("OCP") is None,
 needs_two_cores = pytest.mark.skipif(not step_workers.two_cores_available(),
                                      reason="one core: everything is built here")
 
-# Four primitives whose sections cross (tests/test_step_export.py's CROSSING).
-FOLDING = [
-    SweepPrimitive([[-0.1, 0, 0], [0, 0.1, 0], [0.1, 0, 0]], a=0.2, b=0.05, degree=2.0,
-                   name="elbow"),
-    SweepPrimitive([[0.0, -0.08, 0.0], [0.0, 0.17, -0.01], [0.0, 0.09, 0.015]], a=0.08,
-                   b=0.085, degree=2.1, scaling=(0.25, -0.08), name="hairpin"),
-    SweepPrimitive([[-0.08, 0.23, -0.27], [0.02, 0.05, 0.33], [0.08, 0.23, -0.27]], a=0.03,
-                   b=0.03, degree=2.1, scaling=(0.0, 0.13), name="vee"),
-    SweepPrimitive([[0.0934, -0.0755, 0.0825], [0.0803, 0.0174, 0.2435],
-                    [0.0180, 0.0367, 0.0129]], a=0.0542, b=0.0223, degree=1.715,
-                   scaling=(0.2368, 0.0638), name="eight6"),
-]
+FOLDING = CROSSING  # four primitives whose sections cross
 
 
 def _geometry(solid) -> list:

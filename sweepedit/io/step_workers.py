@@ -189,7 +189,7 @@ class _Share:
             k, data, seconds, error = reply
             with self._lock:
                 if error is not None:
-                    self._failure = error
+                    self._failure, self._sent = error, None  # the helper is idle again
                     return
                 self._results.setdefault(k, (solid_from_bytes(data), seconds, False))
                 self._send_next(token)
