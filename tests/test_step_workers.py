@@ -30,7 +30,6 @@ needs_occ = pytest.mark.skipif(importlib.util.find_spec("OCP") is None,
 needs_two_cores = pytest.mark.skipif(not step_workers.two_cores_available(),
                                      reason="one core: everything is built here")
 
-FOLDING = CROSSING  # four primitives whose sections cross
 
 
 def _geometry(solid) -> list:
@@ -86,7 +85,7 @@ def test_binary_round_trip_keeps_a_solid_exactly() -> None:
 @needs_occ
 def test_with_fewer_than_two_slow_primitives_all_are_built_here_in_order() -> None:
     rod = SweepPrimitive([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0]], a=0.02, b=0.02, degree=2.0)
-    chosen = list(enumerate([FOLDING[0], rod]))
+    chosen = list(enumerate([CROSSING[0], rod]))
     starts: list[tuple[int, int]] = []
     built = build_all(chosen, None, _here(chosen), [True, False],
                       lambda k, done: starts.append((k, done)), lambda done: None)
@@ -100,7 +99,7 @@ def test_with_fewer_than_two_slow_primitives_all_are_built_here_in_order() -> No
 @needs_two_cores
 def test_the_helper_builds_the_same_solids_and_they_come_back_in_order() -> None:
     _ready_helper()
-    chosen = list(enumerate(FOLDING))
+    chosen = list(enumerate(CROSSING))
     assert all(sections_cross(p) for _, p in chosen)
     starts: list[int] = []
     built = build_all(chosen, None, _here(chosen), [True] * 4,
@@ -109,7 +108,7 @@ def test_the_helper_builds_the_same_solids_and_they_come_back_in_order() -> None
     assert there and there[0] == 0  # the helper takes the front of the list
     assert sorted(starts) == [k for k, (_, _, here) in enumerate(built) if here]
     for k in there:  # the very solid this process builds
-        assert _geometry(built[k][0]) == _geometry(primitive_solid(FOLDING[k], k))
+        assert _geometry(built[k][0]) == _geometry(primitive_solid(CROSSING[k], k))
 
 
 @needs_occ
@@ -118,7 +117,7 @@ def test_an_export_shared_with_the_helper_writes_every_solid(tmp_path: Path) -> 
     _ready_helper()
     rod = SweepPrimitive([[0.3, 0, 0], [0.4, 0.05, 0], [0.5, 0, 0]], a=0.03, b=0.03,
                          degree=2.0, name="rod")
-    prims = [FOLDING[0], rod, FOLDING[1], FOLDING[3]]
+    prims = [CROSSING[0], rod, CROSSING[1], CROSSING[3]]
     out = tmp_path / "shared.step"
     export_step(Abstraction(prims), out)
     solids = read_step(out)
@@ -135,7 +134,7 @@ def test_the_helpers_error_is_raised_here_as_it_was() -> None:
     broken = SweepPrimitive([[0, 0, 0], [0.1, 0.1, 0], [0.2, 0, 0]], a=0.05, b=0.05,
                             degree=2.0, name="broken")
     broken.control_points[1, 1] = np.nan
-    chosen = [(0, broken), (1, FOLDING[0])]
+    chosen = [(0, broken), (1, CROSSING[0])]
     with pytest.raises(SweepeditError) as here:
         primitive_solid(broken, 0)
     with pytest.raises(type(here.value), match=str(here.value).replace("(", r"\(")
@@ -149,7 +148,7 @@ def test_the_helpers_error_is_raised_here_as_it_was() -> None:
 @needs_two_cores
 def test_a_helper_that_dies_loses_nothing() -> None:
     helper = _ready_helper()
-    chosen = list(enumerate(FOLDING[:3]))
+    chosen = list(enumerate(CROSSING[:3]))
 
     def started(k: int, done: int) -> None:
         helper._process.kill()  # as a crash in OpenCascade would end it, mid-solid
@@ -165,7 +164,7 @@ def test_a_helper_that_dies_loses_nothing() -> None:
 @needs_two_cores
 def test_a_cancel_stops_the_helper() -> None:
     helper = _ready_helper()
-    chosen = list(enumerate(FOLDING[:3]))
+    chosen = list(enumerate(CROSSING[:3]))
 
     def started(k: int, done: int) -> None:
         raise ExportCancelledError()
@@ -179,7 +178,7 @@ def test_a_cancel_stops_the_helper() -> None:
 @needs_two_cores
 def test_a_one_off_export_starts_a_helper_only_for_many_slow_primitives(monkeypatch) -> None:
     _no_helper()
-    chosen = list(enumerate(FOLDING[:2]))
+    chosen = list(enumerate(CROSSING[:2]))
     built = build_all(chosen, None, _here(chosen), [True, True], lambda k, d: None,
                       lambda d: None)
     assert all(here for _, _, here in built)

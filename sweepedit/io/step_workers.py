@@ -75,11 +75,10 @@ def build_all(chosen: Sequence[tuple[int, SweepPrimitive]],
     `normalization`). slow (len(chosen),): which are likely slow (their sections cross);
     with at least MIN_SLOW_FOR_HELPER the helper shares the work where one is running
     (start_helper), or is started with MIN_SLOW_TO_START; it takes work from the moment
-    it is ready. started(k,
-    done) is called before this process builds the k-th with `done` finished so far,
-    waiting(done) every POLL_S while it waits for the helper; either may raise to cancel
-    (the helper is then stopped), as may build. An error building a solid is raised as
-    it was, from either process."""
+    it is ready. started(k, done) is called before this process builds the k-th with
+    `done` finished so far, waiting(done) every POLL_S while it waits for the helper;
+    either may raise to cancel (the helper is then stopped), as may build. An error
+    building a solid is raised as it was, from either process."""
     count = len(chosen)
     if len(slow) != count:
         raise ValueError(f"{len(slow)} slowness flags for {count} solids")
@@ -90,11 +89,16 @@ def build_all(chosen: Sequence[tuple[int, SweepPrimitive]],
         results = []
         for k in range(count):
             started(k, k)
-            begun = time.perf_counter()
-            solid = build(k)
-            results.append((solid, time.perf_counter() - begun, True))
+            results.append(_built_here(build, k))
         return results
     return _Share(helper, chosen, normalization, build, slow).run(started, waiting)
+
+
+def _built_here(build: Callable[[int], Any], k: int) -> Built:
+    """build(k) in this process, timed."""
+    begun = time.perf_counter()
+    solid = build(k)
+    return solid, time.perf_counter() - begun, True
 
 
 class _Share:
@@ -129,10 +133,9 @@ class _Share:
                         break
                     k = self._todo.pop()
                 started(k, len(self._results))
-                begun = time.perf_counter()
-                solid = self._build(k)
+                built = _built_here(self._build, k)
                 with self._lock:
-                    self._results.setdefault(k, (solid, time.perf_counter() - begun, True))
+                    self._results.setdefault(k, built)
             while True:
                 with self._lock:
                     self._raise_failure()
@@ -147,8 +150,7 @@ class _Share:
                     self._helper.stop()
                     for k in left:
                         started(k, len(self._results))
-                        begun = time.perf_counter()
-                        self._results[k] = (self._build(k), time.perf_counter() - begun, True)
+                        self._results[k] = _built_here(self._build, k)
                     continue
                 waiting(len(self._results))
                 feeder.join(POLL_S)
@@ -216,14 +218,8 @@ class _Helper:
         self.ready = threading.Event()
         self._inbox: queue.Queue[Any] = queue.Queue()
         self._tokens = itertools.count(1)
-        self._token = 0
         threading.Thread(target=self._read, daemon=True).start()
-        atexit.register(self._close)
-
-    def _close(self) -> None:
-        """At exit: the helper holds nothing to keep."""
-        self._process.kill()
-        self._process.wait()
+        atexit.register(self.stop)  # it holds nothing to keep
 
     @classmethod
     def current(cls) -> _Helper | None:
@@ -250,13 +246,10 @@ class _Helper:
 
     def claim(self) -> int:
         """A token for one export's messages (replies to earlier ones are dropped)."""
-        self._token = next(self._tokens)
-        return self._token
+        return next(self._tokens)
 
     def release(self, token: int) -> None:
         """The export with `token` is over: its feeder, if still waiting, returns."""
-        if self._token == token:
-            self._token = 0
         self._inbox.put((token, "released"))
 
     def send(self, message: tuple[Any, ...]) -> None:
