@@ -202,9 +202,10 @@ def test_original_frame_scales_and_moves_the_solids(tmp_path: Path) -> None:
 @needs_occ
 def test_a_union_that_fails_its_check_is_fused_again_one_solid_at_a_time(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    # OpenCascade's fuse of all the solids at once sometimes drops material; here its
-    # first fuse is made to drop all but the first solid, and the export must see that
-    # and fuse them again one at a time.
+    # OpenCascade's fuse of all the solids at once sometimes drops material; here every
+    # fuse of more than two (all at once, and fusing back what it left out) is made to
+    # drop all but the first solid, and the export must see that and fuse them again one
+    # at a time.
     from sweepedit.io import step_export
 
     real = step_export.fuse_solids
@@ -212,7 +213,7 @@ def test_a_union_that_fails_its_check_is_fused_again_one_solid_at_a_time(
 
     def lossy_first(solids):
         calls.append(len(solids))
-        return solids[0] if len(calls) == 1 else real(solids)
+        return solids[0] if len(solids) > 2 else real(solids)
 
     monkeypatch.setattr(step_export, "fuse_solids", lossy_first)
     prims = [
@@ -225,11 +226,82 @@ def test_a_union_that_fails_its_check_is_fused_again_one_solid_at_a_time(
     ]
     out = tmp_path / "union.step"
     export_step(Abstraction(prims), out, union=True)
-    assert calls == [3, 2, 2]
+    assert calls == [3, 3, 2, 2]
     solids = _check(out)
     assert len(solids) == 1
     estimate, error = _monte_carlo(prims, 600_000)
     assert solid_volume(solids[0].shape) == pytest.approx(estimate, abs=4 * error)
+
+
+def _rod_cross_and_apart() -> list[SweepPrimitive]:
+    """A rod, a rod crossing it at the origin, and a third apart from both."""
+    return [
+        SweepPrimitive([[-0.3, 0, 0], [0, 0, 0], [0.3, 0, 0]], a=0.05, b=0.05, degree=2.0,
+                       name="rod"),
+        SweepPrimitive([[0, -0.3, 0], [0, 0, 0], [0, 0.3, 0]], a=0.04, b=0.06, degree=1.5,
+                       name="cross"),
+        SweepPrimitive([[0.1, 0.2, 0.3], [0.25, 0.3, 0.3], [0.4, 0.2, 0.35]], a=0.04,
+                       b=0.03, degree=3.0, scaling=(0.2, -0.3), name="apart"),
+    ]
+
+
+@needs_occ
+def test_the_solids_a_fuse_left_out_are_found_by_points_inside_them_alone() -> None:
+    # A fuse of two of three primitives' solids left the third out (wherever it lies:
+    # crossing the others or apart); a fuse of all left nothing out, nor does a fuse
+    # with only part of a solid missing count as leaving that solid out.
+    from sweepedit.io.step_export import (
+        UnionVolumes,
+        _bounds,
+        fuse_solids,
+        left_out,
+        primitive_solid,
+    )
+
+    prims = _rod_cross_and_apart()
+    solids = [primitive_solid(p) for p in prims]
+    volumes = UnionVolumes(prims)
+    size = float(np.linalg.norm(np.subtract(*_bounds(prims))))
+    assert left_out(fuse_solids(solids), volumes, None, size) == []
+    for k in range(3):
+        kept = [s for j, s in enumerate(solids) if j != k]
+        assert left_out(fuse_solids(kept), volumes, None, size) == [k]
+    assert left_out(solids[1], volumes, None, size) == [0, 2]
+    # In the file's original frame, the points move with the solids.
+    norm = Normalization([1.0, -2.0, 3.0], 10.0)
+    moved = [primitive_solid(p, 0, norm) for p in prims]
+    assert left_out(fuse_solids(moved[:2]), volumes, norm, 10.0 * size) == [2]
+
+
+@needs_occ
+def test_a_solid_the_fuse_of_all_left_out_is_fused_back(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # OpenCascade's fuse of all at once left one whole solid out of hand2.txt's union
+    # (9.1 % short, in any order); here the fuse of all three leaves the crossing rod
+    # out, and the export must fuse it back in one more fuse (not one at a time) and
+    # write the union at its true volume.
+    from sweepedit.io import step_export
+
+    real = step_export.fuse_solids
+    calls: list[int] = []
+    prims = _rod_cross_and_apart()
+
+    def drops_the_cross(solids, fuzzy=0.0):
+        calls.append(len(solids))
+        if len(calls) == 1:
+            return real([s for s in solids if abs(solid_volume(s) - cross) > 1e-9 * cross])
+        return real(solids, fuzzy)
+
+    cross = solid_volume(step_export.primitive_solid(prims[1]))
+    monkeypatch.setattr(step_export, "fuse_solids", drops_the_cross)
+    out = tmp_path / "union.step"
+    stages: list[str] = []
+    export_step(Abstraction(prims), out, union=True, progress=lambda f, text: stages.append(text))
+    assert calls == [3, 2]
+    assert "fusing back the solids left out: primitive 'cross'" in stages
+    (union,) = _check(out)
+    estimate, error = _monte_carlo(prims, 400_000)
+    assert solid_volume(union.shape) == pytest.approx(estimate, abs=4 * error)
 
 
 def test_the_union_volume_by_sobol_points_is_the_closed_form_of_disjoint_primitives() -> None:
@@ -253,10 +325,7 @@ def test_the_volume_of_a_part_of_a_union_is_its_own_from_the_same_points() -> No
     # each primitive alone is its closed form, two crossing ones less than the sum.
     from sweepedit.io.step_export import UnionVolumes
 
-    rod = SweepPrimitive([[-0.3, 0, 0], [0, 0, 0], [0.3, 0, 0]], a=0.05, b=0.05, degree=2.0)
-    cross = SweepPrimitive([[0, -0.3, 0], [0, 0, 0], [0, 0.3, 0]], a=0.04, b=0.06, degree=1.5)
-    apart = SweepPrimitive([[0.1, 0.2, 0.3], [0.25, 0.3, 0.3], [0.4, 0.2, 0.35]], a=0.04,
-                           b=0.03, degree=3.0, scaling=(0.2, -0.3))
+    rod, cross, apart = _rod_cross_and_apart()
     volumes = UnionVolumes([rod, cross, apart])
     for k, prim in enumerate((rod, cross, apart)):
         estimate, error = volumes.volume([k])
