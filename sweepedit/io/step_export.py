@@ -1121,10 +1121,12 @@ class _OtherSolids:
 
 def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: list[str],
                  builds: Sequence[Iterator[Any]], seconds: Sequence[float], path: Path,
-                 normalization: Normalization | None, say: Callable[[str], None]) -> bytes:
+                 normalization: Normalization | None, volumes: UnionVolumes,
+                 say: Callable[[str], None]) -> bytes:
     """The STEP bytes of one solid fusing `solids` (of `primitives`, named `names` in
     messages, in the frame of `normalization`), checked against the exact inside test's
-    estimate of the union and read back. say(text) names each attempt (and raises to
+    estimate of the union (`volumes`, of `primitives`) and read back. say(text) names
+    each attempt (and raises to
     cancel); `builds` give the other solids of primitives whose sections cross
     (primitive_solids), `seconds` how long each took to build. The first failure's
     StepExportError where no attempt passes.
@@ -1141,7 +1143,6 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
     lo, hi = _bounds(primitives)
     size = float(np.linalg.norm(hi - lo)) * (normalization.scale if normalization else 1.0)
     others = _OtherSolids(builds)
-    volumes = UnionVolumes(primitives)
     estimate, error = volumes.volume(range(len(primitives)))
     tolerance = _union_tolerance(solids, primitives, estimate, error, scale3)
 
@@ -1484,17 +1485,21 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
     # the search goes on from the first where that was built here, and starts again,
     # skipping the first, where the helper built it.
     searches = [primitive_solids(p, i, normalization) for i, p in chosen]
-    built = build_all(chosen, normalization, lambda k: next(searches[k]),
-                      [sections_cross(p) for _, p in chosen],
-                      lambda k, done: step(done, f"building {_describe(*chosen[k])}"),
-                      lambda done: step(done, "building the solids"))
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        # A union's estimate (0.1-0.3 s) is made meanwhile, on a core the building
+        # leaves idle (the inside test lets go of the interpreter).
+        volumes = pool.submit(UnionVolumes, [p for _, p in chosen]) if union else None
+        built = build_all(chosen, normalization, lambda k: next(searches[k]),
+                          [sections_cross(p) for _, p in chosen],
+                          lambda k, done: step(done, f"building {_describe(*chosen[k])}"),
+                          lambda done: step(done, "building the solids"))
     solids = [solid for solid, _, _ in built]
     seconds = [took for _, took, _ in built]
     builds = [search if here else islice(primitive_solids(p, i, normalization), 1, None)
               for search, (_, _, here), (i, p) in zip(searches, built, chosen, strict=True)]
     if union:
         data = _union_bytes(solids, [p for _, p in chosen], [_describe(i, p) for i, p in chosen],
-                            builds, seconds, path, normalization,
+                            builds, seconds, path, normalization, volumes.result(),
                             lambda text: step(len(chosen) + 1, text))
         solids_written = 1
         step(len(chosen) + 2, f"writing {path.name}")
