@@ -248,8 +248,8 @@ def _rod_cross_and_apart() -> list[SweepPrimitive]:
 @needs_occ
 def test_the_solids_a_fuse_left_out_are_found_by_points_inside_them_alone() -> None:
     # A fuse of two of three primitives' solids left the third out (wherever it lies:
-    # crossing the others or apart); a fuse of all left nothing out, nor does a fuse
-    # with only part of a solid missing count as leaving that solid out.
+    # crossing the others or apart); a fuse of all left nothing out; one solid alone
+    # left both others out.
     from sweepedit.io.step_export import (
         UnionVolumes,
         _bounds,

@@ -1126,10 +1126,9 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
     """The STEP bytes of one solid fusing `solids` (of `primitives`, named `names` in
     messages, in the frame of `normalization`), checked against the exact inside test's
     estimate of the union (`volumes`, of `primitives`) and read back. say(text) names
-    each attempt (and raises to
-    cancel); `builds` give the other solids of primitives whose sections cross
-    (primitive_solids), `seconds` how long each took to build. The first failure's
-    StepExportError where no attempt passes.
+    each attempt (and raises to cancel); `builds` give the other solids of primitives
+    whose sections cross (primitive_solids), `seconds` how long each took to build. The
+    first failure's StepExportError where no attempt passes.
 
     OpenCascade's fuse of all at once (largest first, _largest_first) sometimes drops
     material or comes out invalid (2 of the benchmark's 51 unions on 12-06: hand2.txt,
