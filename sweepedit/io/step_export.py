@@ -801,11 +801,17 @@ def solid_volume(shape: Any, precision: float = VOLUME_PRECISION) -> float:
     return float(props.Mass())
 
 
-def _check_solid(shape: Any, expected: float, tolerance: float, what: str,
-                 truth: str) -> None:
+def is_valid(shape: Any, parallel: bool = False) -> bool:
+    """OpenCascade's checker on `shape`; `parallel` on its thread pool, for a large shape
+    (a union of 8: 0.115 -> 0.075 s on two cores)."""
     from OCP.BRepCheck import BRepCheck_Analyzer
 
-    if not BRepCheck_Analyzer(shape).IsValid():
+    return BRepCheck_Analyzer(shape, True, parallel).IsValid()
+
+
+def _check_solid(shape: Any, expected: float, tolerance: float, what: str,
+                 truth: str, parallel: bool = False) -> None:
+    if not is_valid(shape, parallel):
         raise StepExportError(f"{what}: OpenCascade's checker finds the solid invalid")
     volume = solid_volume(shape)
     if not abs(volume / expected - 1.0) <= tolerance:
@@ -1145,20 +1151,29 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
     estimate, error = volumes.volume(range(len(primitives)))
     tolerance = _union_tolerance(solids, primitives, estimate, error, scale3)
 
-    def written(union: Any) -> bytes:
-        _check_solid(union, estimate * scale3, tolerance, "the union",
-                     "the exact inside test's quasi-Monte Carlo estimate")
+    def written(union: Any, volume: float) -> bytes:
         # A union read back is checked by OpenCascade's checker too: one fused with
         # its solids nudged came back invalid from a file once (bone.json).
         return _step_bytes([(union, path.stem, primitives[0].color)], path,
                            checks=["validity"],
-                           budget=STEP_BYTES_PER_PRIMITIVE * len(primitives))
+                           budget=STEP_BYTES_PER_PRIMITIVE * len(primitives),
+                           volumes=[volume])
 
     def checked(fused: Any) -> bytes:
-        try:
-            return written(simplify_edge_curves(fused))
-        except StepExportError:  # the fewer poles made it invalid: the fuse's own
-            return written(fused)
+        # The fuse's volume is checked, and the same with edge curves of fewer poles
+        # only as read back against it: with those curves the volume takes twice as
+        # long to integrate (glyph_8.json: 0.47 s against 0.22 s), and a fuse that
+        # went wrong is known before they are made (BENCHMARKS.md, STEP export).
+        _check_solid(fused, estimate * scale3, tolerance, "the union",
+                     "the exact inside test's quasi-Monte Carlo estimate", parallel=True)
+        volume = solid_volume(fused)
+        simplified = simplify_edge_curves(fused)
+        if is_valid(simplified, parallel=True):
+            try:
+                return written(simplified, volume)
+            except StepExportError:
+                pass
+        return written(fused, volume)  # the fewer poles rebuilt a face wrong
 
     def first_passing(tried: list[tuple[str, Callable[[], Any]]]) -> bytes:
         for k, (text, attempt) in enumerate(tried):
@@ -1292,7 +1307,8 @@ def _color(hex_color: str) -> Any:
 
 
 def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
-                checks: Sequence[ReadBackCheck], budget: int | None = None) -> bytes:
+                checks: Sequence[ReadBackCheck], budget: int | None = None,
+                volumes: Sequence[float] | None = None) -> bytes:
     """Shapes with names and colours [(shape, name, '#rrggbb')] as the bytes of an AP214
     STEP file that reads back as checked (_read_back_checked), with STEP_DECIMALS
     decimals, or with OpenCascade's own 13 digits where that file reads back with other
@@ -1301,11 +1317,15 @@ def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
     written again). A file over `budget`
     bytes is written without the edges' curves on their faces where it reads back as
     checked that way (_checked_bytes). `checks`: what each part is checked for on reading
-    back. `path` is the file meant, for messages."""
+    back; `volumes`: the volume each must read back with, by default its own. `path` is
+    the file meant, for messages."""
     parts = list(parts)
     checks = list(checks)
-    if len(checks) != len(parts):
-        raise ValueError(f"{len(checks)} read-back checks for {len(parts)} solids")
+    expected = [solid_volume(shape) for shape, _, _ in parts] if volumes is None \
+        else list(volumes)
+    if not len(checks) == len(expected) == len(parts):
+        raise ValueError(f"{len(checks)} read-back checks and {len(expected)} volumes "
+                         f"for {len(parts)} solids")
     with tempfile.TemporaryDirectory(prefix="sweepedit-step-") as folder:
         tmp = Path(folder) / "export.step"
         if budget is not None:
@@ -1313,29 +1333,29 @@ def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
             # the size is looked at first, and only one file is read back where it can.
             _write_step(parts, tmp, path, STEP_DECIMALS)
             if tmp.stat().st_size <= budget:  # read that file back, not another copy
-                return _checked_bytes(parts, tmp, path, checks, face_curves=True,
-                                      written=True)
+                return _checked_bytes(parts, tmp, path, checks, expected,
+                                      face_curves=True, written=True)
             try:
-                return _checked_bytes(parts, tmp, path, checks,
+                return _checked_bytes(parts, tmp, path, checks, expected,
                                       face_curves=False)
             except StepExportError:
                 pass  # read back otherwise than checked: the file with the curves
-        return _checked_bytes(parts, tmp, path, checks, face_curves=True)
+        return _checked_bytes(parts, tmp, path, checks, expected, face_curves=True)
 
 
 def _checked_bytes(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
-                   checks: list[ReadBackCheck], face_curves: bool,
+                   checks: list[ReadBackCheck], expected: list[float], face_curves: bool,
                    written: bool = False) -> bytes:
     """_read_back_checked with STEP_DECIMALS decimals, else with all digits (see
     _step_bytes). `written`: tmp already holds `parts` written with STEP_DECIMALS
     decimals and these face_curves."""
     try:
-        return _read_back_checked(parts, tmp, path, STEP_DECIMALS, checks,
+        return _read_back_checked(parts, tmp, path, STEP_DECIMALS, checks, expected,
                                   face_curves, written)
     except _InvalidOnReadingError:
         raise  # not the rounding: the same at 13 digits (bone.json's unions)
     except StepExportError:
-        return _read_back_checked(parts, tmp, path, None, checks, face_curves)
+        return _read_back_checked(parts, tmp, path, None, checks, expected, face_curves)
 
 
 class _InvalidOnReadingError(StepExportError):
@@ -1344,10 +1364,11 @@ class _InvalidOnReadingError(StepExportError):
 
 def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
                        decimals: int | None, checks: list[ReadBackCheck],
-                       face_curves: bool = True, written: bool = False) -> bytes:
+                       expected: list[float], face_curves: bool = True,
+                       written: bool = False) -> bytes:
     """The bytes of `parts` written as STEP (at tmp, by _write_step, unless `written`
     says tmp holds them so already), read back and each solid's volume compared with
-    the one checked in memory, and each solid whose entry of `checks` says "validity"
+    `expected` (the one checked in memory), and each solid whose entry of `checks` says "validity"
     checked by OpenCascade's checker, "crossing" by its self-interference check
     (crosses_itself: a solid that passes it in memory can cross itself within
     OpenCascade's tolerance once its numbers are rounded; 2 of 327 did at 8 decimals,
@@ -1355,10 +1376,8 @@ def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
     same volume, negated, on reading; seen on 1 of 378 primitives): such a solid is
     written reversed instead (in `parts`); anything else that differs is an error, not a
     file."""
-    from OCP.BRepCheck import BRepCheck_Analyzer
     from OCP.TopoDS import TopoDS
 
-    expected = [solid_volume(shape) for shape, _, _ in parts]
     for attempt in range(2):
         if attempt or not written:
             _write_step(parts, tmp, path, decimals, face_curves)
@@ -1375,7 +1394,7 @@ def _read_back_checked(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
             raise StepExportError(f"{path}: {', '.join(wrong)} read back from the STEP "
                                   "file with another volume than was checked; not written")
         invalid = [parts[i][1] for i, (r, check) in enumerate(zip(read, checks, strict=True))
-                   if check == "validity" and not BRepCheck_Analyzer(r.shape).IsValid()]
+                   if check == "validity" and not is_valid(r.shape, parallel=True)]
         if invalid:
             raise _InvalidOnReadingError(f"{path}: {', '.join(invalid)} read back from "
                                          "the STEP file as an invalid solid; not written")
