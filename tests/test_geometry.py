@@ -310,6 +310,53 @@ def test_the_inside_kernel_holds_the_plane_offset_of_the_sweep_math() -> None:
         assert np.allclose(got, expected, rtol=0.0, atol=1e-12)
 
 
+def test_the_inside_kernel_holds_the_frames_and_profile_level_of_the_sweep_math() -> None:
+    # inside_kernel.py turns each segment's start frame (sweep.segment_frames) to the
+    # tangent at t for one point, and computes the profile's level there: it must give
+    # axis_frames' U, V and superellipse_level's level, on curved axes of several
+    # segments, a cusp, a hairpin that turns by nearly pi (the rotation about the
+    # plane's normal) and an exact fold back along a line (U kept, V flipped).
+    from sweepedit.geometry.inside_kernel import _frame_at, _profile_level_at
+    from sweepedit.geometry.sweep import (
+        bezier_segments,
+        scaling_factor,
+        segment_frames,
+        superellipse_level,
+    )
+
+    rng = np.random.default_rng(8)
+    axes = [rng.normal(0.0, 0.2, (n, 3)) for n in (3, 4, 6)]
+    axes.append(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.1, 0.0]]))  # s'(0) = 0
+    axes.append(np.array([[0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.5, 1e-6, 0.0]]))  # hairpin
+    axes.append(np.array([[0.0, 0.0, 0.0], [0.5, 0.375, 0.0], [0.0, 0.0, 0.0]]))  # exact fold
+    profile = np.array([[0.07, 0.04, 0.8]])
+    scaling = np.array([[0.3, -0.2]])
+    turned = 0
+    for cps in axes:
+        m = len(cps) - 2
+        t = np.concatenate([[0.0, 1.0], np.arange(1, m) / m, rng.uniform(0.0, 1.0, 60)])
+        frames = axis_frames(cps[None], t)
+        start = np.ascontiguousarray(np.concatenate(
+            [np.asarray(a[0], dtype=np.float64) for a in segment_frames(cps[None])], axis=1))
+        for k, tk in enumerate(t):
+            j = min(int(tk * m), m - 1)
+            got = np.array(_frame_at(start, j, *frames.T[0, k]))
+            np.testing.assert_allclose(got[:3], frames.U[0, k], rtol=0.0, atol=1e-12)
+            np.testing.assert_allclose(got[3:], frames.V[0, k], rtol=0.0, atol=1e-12)
+            turned += frames.T[0, k] @ start[j, :3] < 0.0
+        points = frames.points[0] + rng.normal(0.0, 0.05, (len(t), 3))
+        rel = points - frames.points[0]
+        f = scaling_factor(scaling, t)[0]
+        x = np.einsum("ij,ij->i", rel, frames.U[0]) / f
+        y = np.einsum("ij,ij->i", rel, frames.V[0]) / f
+        expected = superellipse_level(x[None], y[None], profile)[0]
+        p0, p1, p2 = (np.ascontiguousarray(a[0]) for a in bezier_segments(cps[None]))
+        got = np.array([_profile_level_at(*p, p0, p1, p2, start, scaling[0], profile[0], tk)
+                        for p, tk in zip(points, t, strict=True)])
+        np.testing.assert_allclose(got, expected, rtol=1e-10)
+    assert turned > 10  # tangents beyond pi/2 from their segment's start were checked
+
+
 def test_the_inside_test_wants_points_as_rows_of_three() -> None:
     p = SweepPrimitive([[0, 0, -0.3], [0, 0, 0], [0, 0, 0.3]], a=0.2, b=0.1, degree=2.0)
     with pytest.raises(ValueError, match=r"\(N, 3\)"):

@@ -3,9 +3,10 @@
 A point p is inside a primitive when, for some t in [0, 1], p lies in the profile plane
 at t (h(t) = (p - s(t)).T(t) = 0) and its in-plane coordinates, divided by f(t), fall
 inside the superellipse. h is sampled densely, its sign changes are bracketed and
-refined by regula falsi on the exact curve, and every root is tested. The search for the
-roots is one compiled loop per point (inside_kernel.py); the frames at the roots and the
-profile are sweep.py's.
+refined by regula falsi on the exact curve, and every root is tested. All of it is one
+compiled loop per point (inside_kernel.py), with sweep.py's math written out for one
+point and held to it by tests; what it needs of a primitive is made once, by sweep.py
+(_make_axis_table).
 """
 
 from __future__ import annotations
@@ -16,19 +17,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sweepedit.geometry.inside_kernel import profile_plane_roots
+from sweepedit.geometry.inside_kernel import mark_inside
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import (
-    axis_frames,
     axis_points_tangents,
     bezier_segments,
     scaling_factor,
-    superellipse_level,
+    segment_frames,
 )
 
 T_SAMPLES = 256
 REFINE_STEPS = 2
-_CHUNK = 1 << 15
 # Every how many axis samples the tube filter tests against (see _make_axis_table).
 _COARSE = 8
 
@@ -78,6 +77,8 @@ class _AxisTable(NamedTuple):
     reach2: np.ndarray  # (T-1,) squared reach of each interval of samples
     segments: tuple[np.ndarray, np.ndarray, np.ndarray]  # the Bezier segments, each (m, 3)
     radii2: tuple[float, float]  # squared in-plane radii surely inside, surely outside
+    # (m, 13) per segment: start tangent, U, V, plane normal, planar (inside_kernel._frame_at)
+    start: np.ndarray
 
 
 def profile_radii2(a: float, b: float, d: float) -> tuple[float, float]:
@@ -140,7 +141,9 @@ def _make_axis_table(arrays: _Arrays, t_samples: int) -> _AxisTable:
         float(reach.max() + gap.max()) + widen + 1e-9,
         (np.maximum(reach[:-1], reach[1:]) + gap) ** 2,
         tuple(np.ascontiguousarray(a[0]) for a in bezier_segments(cps)),
-        profile_radii2(*(float(v) for v in profile[0])))
+        profile_radii2(*(float(v) for v in profile[0])),
+        np.ascontiguousarray(np.concatenate([np.asarray(a[0], dtype=np.float64)
+                                             for a in segment_frames(cps)], axis=1)))
 
 
 def _inside_primitive(points: np.ndarray, primitive: SweepPrimitive, t_samples: int,
@@ -150,44 +153,11 @@ def _inside_primitive(points: np.ndarray, primitive: SweepPrimitive, t_samples: 
     table = _axis_table(primitive, t_samples)
     result = np.zeros(len(points), dtype=bool)
     todo = np.ones(len(points), dtype=bool) if todo is None else todo
-    for start in range(0, len(points), _CHUNK):
-        chunk = slice(start, start + _CHUNK)
-        rows, roots = _profile_plane_roots(points[chunk], todo[chunk], result[chunk], table)
-        if rows.size == 0:
-            continue
-        hit = _inside_profile_at(points[chunk][rows], table.cps, table.profile,
-                                 table.scaling, roots)
-        result[start + rows[hit]] = True
+    mark_inside(points, todo, table.lo, table.hi, table.coarse, table.bound, table.centres,
+                table.tangent_columns, table.offsets, table.reach2, table.t,
+                *table.segments, REFINE_STEPS, table.scaling[0], *table.radii2,
+                table.start, table.profile[0], result)
     return result
-
-
-def _profile_plane_roots(points: np.ndarray, todo: np.ndarray, inside: np.ndarray,
-                         table: _AxisTable) -> tuple[np.ndarray, np.ndarray]:
-    """inside_kernel.profile_plane_roots of points (N, 3) where todo (N,): sets inside
-    (N,) where a root decides it by its radius alone, and returns the others' points'
-    indices (R,) and roots (R,) for the profile test."""
-    capacity = 2 * len(points) + 64  # most points have one root or none
-    while True:
-        rows, roots = np.empty(capacity, dtype=np.int64), np.empty(capacity)
-        count = profile_plane_roots(points, todo, table.lo, table.hi, table.coarse,
-                                    table.bound, table.centres, table.tangent_columns,
-                                    table.offsets, table.reach2, table.t,
-                                    *table.segments, REFINE_STEPS, table.scaling[0],
-                                    *table.radii2, inside, rows, roots)
-        if count <= capacity:
-            return rows[:count], roots[:count]
-        capacity = count
-
-
-def _inside_profile_at(p: np.ndarray, cps: np.ndarray, profile: np.ndarray,
-                       scaling: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Is p (R, 3) inside the scaled profile in the plane at t (R,)? -> bool (R,)."""
-    fr = axis_frames(cps, t)
-    f = scaling_factor(scaling, t)[0]
-    rel = p - fr.points[0]
-    x = np.einsum("ij,ij->i", rel, fr.U[0]) / f
-    y = np.einsum("ij,ij->i", rel, fr.V[0]) / f
-    return superellipse_level(x[None], y[None], profile)[0] <= 1.0
 
 
 def inside_primitives(points: np.ndarray, primitives: Sequence[SweepPrimitive],

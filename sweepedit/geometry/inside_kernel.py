@@ -1,19 +1,21 @@
-"""The exact inside test's root search (inside.py) as one compiled loop per point.
+"""The exact inside test (inside.py) as one compiled loop per point.
 
-For each point it does what inside.py's docstring says, up to the roots: the box and
-tube filters, h(t) = (p - s(t)).T(t) at the axis samples, its sign changes where the
-point is within reach of the sample, and REFINE_STEPS of regula falsi on the exact curve.
-As numpy array operations over all points this took 1.7 ms a call whatever its size and
-about 2 µs a point, and STEP export's slicer calls the test ~65 times per folding
-primitive (BENCHMARKS.md, STEP export). numba; compiled on first use and cached on disk.
+For each point it does what inside.py's docstring says: the box and tube filters,
+h(t) = (p - s(t)).T(t) at the axis samples, its sign changes where the point is within
+reach of the sample, REFINE_STEPS of regula falsi on the exact curve, and the profile
+test at each root. As numpy array operations over all points this took 1.7 ms a call
+whatever its size and about 2 µs a point, and STEP export's slicer calls the test ~125
+times per folding primitive (BENCHMARKS.md, STEP export). numba; compiled on first use
+and cached on disk.
 
-The axis point and unit tangent at t (_axis_at) are sweep.py's _points_and_tangents
-written out for one point, and f(t) (_in_plane_radius2) its scaling_factor;
-tests/test_geometry.py holds the first to sweep.py's h(t), and the inside test with and
-without the radius shortcut to each other. The
-frames at the roots and the profile test stay in sweep.py; a root is settled here only
-by the point's radius in its plane, within the profile's inscribed circle or beyond its
-circumscribed one (inside.profile_radii2).
+A root is settled by the point's radius in its plane where that is within the profile's
+inscribed circle or beyond its circumscribed one (inside.profile_radii2), else by the
+profile test in the root's frame. Written out here for one point, each held to sweep.py
+by tests/test_geometry.py: the axis point and unit tangent at t (_axis_at: sweep.py's
+_points_and_tangents), f(t) (_scaling_at: its scaling_factor), the frame at t
+(_frame_at: its _minimal_rotation of the segment's start frame, which sweep.py's
+segment_frames makes once per primitive) and the profile's level (its
+superellipse_level). Numpy's frames at the roots took 40 % of the slicer's inside tests.
 """
 
 from __future__ import annotations
@@ -63,6 +65,17 @@ def _plane_offset_at(px: float, py: float, pz: float, p0: np.ndarray, p1: np.nda
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _scaling_at(scaling: np.ndarray, t: float) -> float:
+    """f(t) = 1 + s1 t + ... + sk t^k for scaling (k,) (sweep.scaling_factor)."""
+    f = 1.0
+    power = 1.0
+    for i in range(scaling.shape[0]):
+        power *= t
+        f += scaling[i] * power
+    return f
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _in_plane_radius2(px: float, py: float, pz: float, p0: np.ndarray, p1: np.ndarray,
                       p2: np.ndarray, scaling: np.ndarray, t: float) -> float:
     """The squared distance of the point from the axis point s(t) within the profile
@@ -71,14 +84,72 @@ def _in_plane_radius2(px: float, py: float, pz: float, p0: np.ndarray, p1: np.nd
     sx, sy, sz, tx, ty, tz = _axis_at(p0, p1, p2, t)
     rx, ry, rz = px - sx, py - sy, pz - sz
     h = rx * tx + ry * ty + rz * tz
-    f = 1.0
-    power = 1.0
-    for i in range(scaling.shape[0]):
-        power *= t
-        f += scaling[i] * power
+    f = _scaling_at(scaling, t)
     if f <= 0.0:
         return math.inf
     return max(rx * rx + ry * ry + rz * rz - h * h, 0.0) / (f * f)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _turned(c: float, k: float, forward: bool, s: float, wx: float, wy: float, wz: float,
+            nx: float, ny: float, nz: float, x0: float, x1: float, x2: float
+            ) -> tuple[float, float, float]:
+    """sweep._minimal_rotation's rotate(x) for one vector (x0, x1, x2)."""
+    if forward:
+        wdx = (wx * x0 + wy * x1 + wz * x2) * k
+        return (c * x0 + (wy * x2 - wz * x1) + wx * wdx,
+                c * x1 + (wz * x0 - wx * x2) + wy * wdx,
+                c * x2 + (wx * x1 - wy * x0) + wz * wdx)
+    ndx = (1.0 - c) * (nx * x0 + ny * x1 + nz * x2)
+    return (c * x0 + s * (ny * x2 - nz * x1) + ndx * nx,
+            c * x1 + s * (nz * x0 - nx * x2) + ndx * ny,
+            c * x2 + s * (nx * x1 - ny * x0) + ndx * nz)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _frame_at(start: np.ndarray, j: int, bx: float, by: float, bz: float
+              ) -> tuple[float, float, float, float, float, float]:
+    """The frame U, V where segment j's tangent is (bx, by, bz): its start frame turned
+    by sweep._minimal_rotation. start (m, 13): per segment its start tangent, U, V,
+    normal (3 each) and planar (1.0 or 0.0), from sweep.segment_frames."""
+    ax, ay, az = start[j, 0], start[j, 1], start[j, 2]
+    ux, uy, uz = start[j, 3], start[j, 4], start[j, 5]
+    nx, ny, nz = start[j, 9], start[j, 10], start[j, 11]
+    wx, wy, wz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    c = ax * bx + ay * by + az * bz
+    forward = c >= 0.0
+    if not forward and start[j, 12] == 0.0:
+        # The exact fold: U made normal to the tangent, V = T x U (sweep.py).
+        ub = ux * bx + uy * by + uz * bz
+        fx, fy, fz = ux - bx * ub, uy - by * ub, uz - bz * ub
+        norm = math.sqrt(max(fx * fx + fy * fy + fz * fz, 1e-18))
+        fx, fy, fz = fx / norm, fy / norm, fz / norm
+        return fx, fy, fz, by * fz - bz * fy, bz * fx - bx * fz, bx * fy - by * fx
+    k = 1.0 / (1.0 + c) if forward else 1.0
+    s = wx * nx + wy * ny + wz * nz
+    ux, uy, uz = _turned(c, k, forward, s, wx, wy, wz, nx, ny, nz, ux, uy, uz)
+    vx, vy, vz = _turned(c, k, forward, s, wx, wy, wz, nx, ny, nz,
+                         start[j, 6], start[j, 7], start[j, 8])
+    return ux, uy, uz, vx, vy, vz
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _profile_level_at(px: float, py: float, pz: float, p0: np.ndarray, p1: np.ndarray,
+                      p2: np.ndarray, start: np.ndarray, scaling: np.ndarray,
+                      profile: np.ndarray, t: float) -> float:
+    """|x/a|^d + |y/b|^d of the point in the profile plane at t (<= 1 inside), with
+    x, y its coordinates in the frame at t over f(t) (> 0), as sweep.superellipse_level
+    computes it; profile (3,) = a, b, d; start as _frame_at's."""
+    sx, sy, sz, tx, ty, tz = _axis_at(p0, p1, p2, t)
+    m = p0.shape[0]
+    j = int(min(max(math.floor(min(max(t, 0.0), 1.0) * m), 0.0), m - 1.0))
+    ux, uy, uz, vx, vy, vz = _frame_at(start, j, tx, ty, tz)
+    rx, ry, rz = px - sx, py - sy, pz - sz
+    f = _scaling_at(scaling, t)
+    x = (rx * ux + ry * uy + rz * uz) / f
+    y = (rx * vx + ry * vy + rz * vz) / f
+    d = profile[2]
+    return max(abs(x / profile[0]), 1e-12) ** d + max(abs(y / profile[1]), 1e-12) ** d
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -101,32 +172,28 @@ def _regula_falsi(px: float, py: float, pz: float, p0: np.ndarray, p1: np.ndarra
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def profile_plane_roots(points: np.ndarray, todo: np.ndarray, lo: np.ndarray,
-                        hi: np.ndarray, coarse: np.ndarray, bound: float,
-                        centres: np.ndarray, tangent_columns: np.ndarray,
-                        offsets: np.ndarray, reach2: np.ndarray, t: np.ndarray,
-                        p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, steps: int,
-                        scaling: np.ndarray, inside_r2: float, outside_r2: float,
-                        inside: np.ndarray, rows: np.ndarray, roots: np.ndarray) -> int:
-    """Every t where a point's profile plane may hold it: points (N, 3) where todo (N,)
-    is True, inside the box lo..hi (3,), within `bound` of a coarse axis sample
-    (coarse (C, 3)), at each sign change of h between the axis samples t (T,)
-    (centres (T, 3), tangent_columns (3, T), offsets (T,) = s.T) within reach (reach2
-    (T - 1,), squared, from the first sample), refined on the exact axis (Bezier
-    segments p0, p1, p2 (m, 3)).
+def mark_inside(points: np.ndarray, todo: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                coarse: np.ndarray, bound: float, centres: np.ndarray,
+                tangent_columns: np.ndarray, offsets: np.ndarray, reach2: np.ndarray,
+                t: np.ndarray, p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, steps: int,
+                scaling: np.ndarray, inside_r2: float, outside_r2: float,
+                start: np.ndarray, profile: np.ndarray, inside: np.ndarray) -> None:
+    """Sets inside[q] for each of points (N, 3) where todo (N,) that the primitive holds.
+    Only points inside the box lo..hi (3,), within `bound` of a coarse axis sample
+    (coarse (C, 3)) are looked at; their profile planes are found at each sign change of
+    h between the axis samples t (T,) (centres (T, 3), tangent_columns (3, T), offsets
+    (T,) = s.T) within reach (reach2 (T - 1,), squared, from the first sample), refined
+    on the exact axis (Bezier segments p0, p1, p2 (m, 3)).
 
     A root where the point's squared radius in the plane over f(t)^2 (scaling (k,): f's
-    coefficients) is at most inside_r2 holds it inside the profile whatever its angle:
-    inside[q] is set and its other roots dropped. One where it is over outside_r2 cannot
-    hold it. The others are left to the profile test: the point's index and the root
-    are written to rows, roots (capacity V), and how many there are is returned; beyond
-    V only the count goes on, and the caller asks again with room."""
+    coefficients) is at most inside_r2 holds it inside the profile whatever its angle;
+    one where it is over outside_r2 cannot hold it; the others are settled by the
+    profile test (_profile_level_at; profile (3,) = a, b, d; start (m, 13) as
+    _frame_at's)."""
     n_points, n_t, n_coarse = points.shape[0], t.shape[0], coarse.shape[0]
-    capacity = rows.shape[0]
     bound2 = bound * bound
     tx, ty, tz = tangent_columns[0], tangent_columns[1], tangent_columns[2]
     h = np.empty(n_t)
-    count = 0
     for q in range(n_points):
         if not todo[q]:
             continue
@@ -143,7 +210,6 @@ def profile_plane_roots(points: np.ndarray, todo: np.ndarray, lo: np.ndarray,
             continue
         for s in range(n_t):  # one vectorised loop: cheaper than skipping far samples
             h[s] = x * tx[s] + y * ty[s] + z * tz[s] - offsets[s]
-        first = count  # this point's roots start here
         for s in range(n_t - 1):
             if (h[s] >= 0.0) == (h[s + 1] >= 0.0):
                 continue
@@ -152,14 +218,9 @@ def profile_plane_roots(points: np.ndarray, todo: np.ndarray, lo: np.ndarray,
                 continue
             root = _regula_falsi(x, y, z, p0, p1, p2, t[s], t[s + 1], h[s], h[s + 1], steps)
             r2 = _in_plane_radius2(x, y, z, p0, p1, p2, scaling, root)
-            if r2 <= inside_r2:
-                inside[q] = True
-                count = first
-                break
             if r2 > outside_r2:
                 continue
-            if count < capacity:
-                rows[count] = q
-                roots[count] = root
-            count += 1
-    return count
+            if r2 <= inside_r2 or _profile_level_at(x, y, z, p0, p1, p2, start, scaling,
+                                                    profile, root) <= 1.0:
+                inside[q] = True
+                break

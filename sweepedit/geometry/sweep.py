@@ -25,6 +25,18 @@ _EPS = 1e-9
 _POW_EPS = 1e-6
 
 
+class SegmentFrames(NamedTuple):
+    """What each Bezier segment of the axes starts with, each (K, m, 3): its unit
+    tangent there, its frame U, V (carried over from the segments before), and the unit
+    normal of its plane; planar (K, m, 1) bool (_segment_binormal)."""
+
+    tangent: Any
+    U: Any
+    V: Any
+    normal: Any
+    planar: Any
+
+
 class AxisFrames(NamedTuple):
     """Axis points and rotation-minimising frames, each (K, M, 3); U x V = T."""
 
@@ -155,12 +167,12 @@ def _segment_tangent(xp: Any, *candidates: Any) -> Any:
     return _normalize(xp, direction)
 
 
-def axis_frames(control_points: Any, t: Any) -> AxisFrames:
-    """Points and rotation-minimising frames of the axes at parameters t.
-
-    control_points: (K, n, 3); t: (M,) in [0, 1] -> AxisFrames, each (K, M, 3).
-    """
-    xp = array_namespace(control_points, t)
+def segment_frames(control_points: Any) -> SegmentFrames:
+    """The frames the axes' Bezier segments start with: control_points (K, n, 3) ->
+    SegmentFrames, each (K, n - 2, ...). Within segment j the frame at t is its start
+    frame turned by the minimal rotation from its start tangent to the tangent at t
+    (axis_frames)."""
+    xp = array_namespace(control_points)
     p0, p1, p2 = bezier_segments(control_points)
     m = p0.shape[1]
     d0 = p1 - p0  # derivative / 2 at u = 0 of each segment, (K, m, 3)
@@ -180,14 +192,23 @@ def axis_frames(control_points: Any, t: Any) -> AxisFrames:
                                  normal[:, j - 1, :], planar[:, j - 1, :])
         starts_u.append(U)
         starts_v.append(V)
-    seg_u = xp.stack(starts_u, axis=1)  # (K, m, 3)
-    seg_v = xp.stack(starts_v, axis=1)
+    return SegmentFrames(t_start, xp.stack(starts_u, axis=1), xp.stack(starts_v, axis=1),
+                         normal, planar)
 
-    j, u = _segment_index(xp, t, m)
+
+def axis_frames(control_points: Any, t: Any) -> AxisFrames:
+    """Points and rotation-minimising frames of the axes at parameters t.
+
+    control_points: (K, n, 3); t: (M,) in [0, 1] -> AxisFrames, each (K, M, 3).
+    """
+    xp = array_namespace(control_points, t)
+    p0, p1, p2 = bezier_segments(control_points)
+    start = segment_frames(control_points)
+    j, u = _segment_index(xp, t, p0.shape[1])
     take = lambda arr: xp.take(arr, j, axis=1)  # noqa: E731  (K, m, 3) -> (K, M, 3)
     points, T = _points_and_tangents(xp, take(p0), take(p1), take(p2), u)
-    ts = take(t_start)
-    U, V = _minimal_rotation(xp, ts, T, take(seg_u), take(seg_v), take(normal), take(planar))
+    U, V = _minimal_rotation(xp, take(start.tangent), T, take(start.U), take(start.V),
+                             take(start.normal), take(start.planar))
     return AxisFrames(points, U, V, T)
 
 
