@@ -120,6 +120,14 @@ def test_star_shaped_polygons_and_others() -> None:
     assert not star_shaped(c_shape[None])[0]
     assert not polygon_crosses_itself(c_shape)
     assert not polygon_crosses_itself(astroid)
+    # A bow tie crosses itself, and so does the C with two neighbours on its arc
+    # swapped (a, c, b, d on a convex arc: the edges a-c and b-d cross); edges that only
+    # share a vertex do not cross; the polygon must be rows of two.
+    assert polygon_crosses_itself(np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]]))
+    assert polygon_crosses_itself(c_shape[[*range(50), 51, 50, *range(52, len(c_shape))]])
+    assert not polygon_crosses_itself(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+    with pytest.raises(ValueError, match=r"\(M, 2\)"):
+        polygon_crosses_itself(np.zeros((5, 3)))
 
 
 def test_our_verdict_agrees_with_opencascades_on_lofts_that_do_and_do_not_cross() -> None:

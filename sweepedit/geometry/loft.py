@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from enum import Enum
 from itertools import pairwise
 
+import numba
 import numpy as np
 from scipy.interpolate import BSpline, make_interp_spline
 
@@ -161,19 +162,36 @@ def star_shaped(curves: np.ndarray) -> np.ndarray:
 
 
 def polygon_crosses_itself(curve: np.ndarray) -> bool:
-    """Whether two edges of a closed polygon (M, 2) that share no vertex cross."""
-    M = len(curve)
-    start, end = curve, np.roll(curve, -1, axis=0)
-    i, j = np.triu_indices(M, 2)
-    keep = ~((i == 0) & (j == M - 1))  # the first and last edges share a vertex
-    i, j = i[keep], j[keep]
+    """Whether two edges of a closed polygon (M, 2) that share no vertex cross (each
+    strictly on both sides of the other's line)."""
+    curve = np.ascontiguousarray(curve, dtype=np.float64)
+    if curve.ndim != 2 or curve.shape[1] != 2:
+        raise ValueError(f"a polygon must be an (M, 2) array, not {curve.shape}")
+    return bool(_edges_cross(curve))
 
-    def side(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
-        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
 
-    return bool(((side(start[i], end[i], start[j]) * side(start[i], end[i], end[j]) < 0.0)
-                 & (side(start[j], end[j], start[i]) * side(start[j], end[j], end[i]) < 0.0)
-                 ).any())
+@numba.njit(cache=True, nogil=True)
+def _side(px: float, py: float, qx: float, qy: float, rx: float, ry: float) -> float:
+    """Twice the signed area of the triangle p, q, r (> 0: r left of p -> q)."""
+    return (qx - px) * (ry - py) - (qy - py) * (rx - px)
+
+
+@numba.njit(cache=True, nogil=True)
+def _edges_cross(curve: np.ndarray) -> bool:
+    """polygon_crosses_itself's loop over the pairs of edges, stopping at the first
+    crossing: as numpy arrays over all M^2 / 2 pairs it took 5 ms a polygon, a third of
+    loft_verdict's time."""
+    m = curve.shape[0]
+    for i in range(m):
+        ax, ay = curve[i, 0], curve[i, 1]
+        bx, by = curve[(i + 1) % m, 0], curve[(i + 1) % m, 1]
+        for j in range(i + 2, m - 1 if i == 0 else m):  # the last edge meets the first
+            cx, cy = curve[j, 0], curve[j, 1]
+            dx, dy = curve[(j + 1) % m, 0], curve[(j + 1) % m, 1]
+            if (_side(ax, ay, bx, by, cx, cy) * _side(ax, ay, bx, by, dx, dy) < 0.0
+                    and _side(cx, cy, dx, dy, ax, ay) * _side(cx, cy, dx, dy, bx, by) < 0.0):
+                return True
+    return False
 
 
 def _in_own_plane(rings: np.ndarray) -> np.ndarray:
