@@ -27,6 +27,7 @@ import math
 from collections.abc import Iterator, Sequence
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
 from scipy import ndimage
 from scipy.interpolate import make_interp_spline
@@ -317,20 +318,33 @@ def _slice_windows(local: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nda
     across), widened by half its size, within the whole surface's window."""
     order = np.argsort(local[:, 0])
     along = local[order, 0]
-    across = local[order, 1:]
+    across = np.ascontiguousarray(local[order, 1:])
     whole_lo, whole_hi = across.min(axis=0), across.max(axis=0)
     pad = 0.02 * float(np.max(whole_hi - whole_lo))
     band = 1.5 * (along[-1] - along[0]) / (SURFACE_STATIONS - 1)
-    lo, hi = np.empty((len(s), 2)), np.empty((len(s), 2))
-    for i, si in enumerate(s):
-        a, b = np.searchsorted(along, [si - band, si + band])
-        if b - a < 8:  # a tip: the nearest samples
-            c = int(np.searchsorted(along, si))
-            a, b = max(0, c - 8), min(len(along), c + 8)
-        near_lo, near_hi = across[a:b].min(axis=0), across[a:b].max(axis=0)
-        half = 0.5 * (near_hi - near_lo) + pad
-        lo[i] = np.maximum(near_lo - half, whole_lo - pad)
-        hi[i] = np.minimum(near_hi + half, whole_hi + pad)
+    a, b = np.searchsorted(along, s - band), np.searchsorted(along, s + band)
+    tip = b - a < 8  # a tip: the nearest samples
+    c = np.searchsorted(along, s[tip])
+    a[tip], b[tip] = np.maximum(0, c - 8), np.minimum(len(along), c + 8)
+    near_lo, near_hi = _range_bounds(across, a, b)
+    half = 0.5 * (near_hi - near_lo) + pad
+    return (np.maximum(near_lo - half, whole_lo - pad),
+            np.minimum(near_hi + half, whole_hi + pad))
+
+
+@numba.njit(cache=True, nogil=True)
+def _range_bounds(values: np.ndarray, a: np.ndarray, b: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The least and greatest of values (N, 2) over each range of rows a[i]:b[i] (each
+    (S,), not empty) -> each (S, 2): a loop, where numpy's per-slice calls took 3 of
+    _slice_windows' 5 ms."""
+    lo, hi = np.empty((len(a), 2)), np.empty((len(a), 2))
+    for i in range(len(a)):
+        for c in range(2):
+            lo[i, c], hi[i, c] = values[a[i], c], values[a[i], c]
+            for r in range(a[i] + 1, b[i]):
+                lo[i, c] = min(lo[i, c], values[r, c])
+                hi[i, c] = max(hi[i, c], values[r, c])
     return lo, hi
 
 
