@@ -172,8 +172,11 @@ def segment_frames(control_points: Any) -> SegmentFrames:
     SegmentFrames, each (K, n - 2, ...). Within segment j the frame at t is its start
     frame turned by the minimal rotation from its start tangent to the tangent at t
     (axis_frames)."""
-    xp = array_namespace(control_points)
-    p0, p1, p2 = bezier_segments(control_points)
+    return _segment_frames(array_namespace(control_points), *bezier_segments(control_points))
+
+
+def _segment_frames(xp: Any, p0: Any, p1: Any, p2: Any) -> SegmentFrames:
+    """segment_frames of the axes' Bezier segments p0, p1, p2 (K, m, 3)."""
     m = p0.shape[1]
     d0 = p1 - p0  # derivative / 2 at u = 0 of each segment, (K, m, 3)
     d1 = p2 - p1  # derivative / 2 at u = 1
@@ -203,7 +206,10 @@ def axis_frames(control_points: Any, t: Any) -> AxisFrames:
     """
     xp = array_namespace(control_points, t)
     p0, p1, p2 = bezier_segments(control_points)
-    start = segment_frames(control_points)
+    # The same segments for the frames: a second copy in torch's graph changes the order
+    # in which gradients add up, and the fits with it (the bundled cactus: 6 primitives,
+    # not 5).
+    start = _segment_frames(xp, p0, p1, p2)
     j, u = _segment_index(xp, t, p0.shape[1])
     take = lambda arr: xp.take(arr, j, axis=1)  # noqa: E731  (K, m, 3) -> (K, M, 3)
     points, T = _points_and_tangents(xp, take(p0), take(p1), take(p2), u)
