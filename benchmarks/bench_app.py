@@ -252,7 +252,7 @@ def main() -> int:
             real = (fit_abstraction, FitSettings)
         except Exception as exc:
             print(f"   (real fit not importable: {type(exc).__name__}: {exc})")
-    import sweepedit.app.window as window_module
+    import sweepedit.app.fit_control as fit_control_module
 
     if real is None:
         class StandInSettings:
@@ -260,7 +260,7 @@ def main() -> int:
                 self.__dict__.update(kw)
                 self.start = prims
 
-        window_module.load_fit_api = lambda: (stand_in_fit, StandInSettings)
+        fit_control_module.load_fit_api = lambda: (stand_in_fit, StandInSettings)
         label = "stand-in thread holding the GIL in 20 ms pure-Python bursts (fit.py missing)"
     else:
         label = "real fit_abstraction, analytic sweeper"
@@ -301,7 +301,7 @@ def main() -> int:
           f"p99 {np.percentile(gaps_ms, 99):.1f} ms, median {np.median(gaps_ms):.1f} ms  "
           f"(target max <= 100)")
     print(f"   loss points plotted: {previews}")
-    returned = w.last_cancel_timing.get("fit_returned_s", float("nan"))
+    returned = w.fit_control.last_cancel_timing.get("fit_returned_s", float("nan"))
     print(f"3. cancel -> best result applied: {cancel_latency * 1e3:.0f} ms  (target <= 1000); "
           f"of which until fit_abstraction returned: {returned * 1e3:.0f} ms; "
           f"{len(w.doc)} primitives, locked kept: "

@@ -79,7 +79,7 @@ def cancel_section(shape: Path, cancels: int, burn: int, seed: int) -> dict:
             if not window.fitting:
                 print(f"  fit {i}: finished before the cancel ({wait:.1f} s)")
                 continue
-            thread = window._fit_thread
+            thread = window.fit_control.thread
             stage = window.fit_panel.status.text()
             t0 = time.perf_counter()
             window.cancel_fit()

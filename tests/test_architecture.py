@@ -46,3 +46,19 @@ def test_a_package_imports_only_the_packages_below_it(package: str) -> None:
 def test_every_package_is_placed() -> None:
     packages = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists()}
     assert packages == set(BELOW)
+
+
+def _qt_classes(path: Path) -> list[str]:
+    """The module's top-level classes that derive from a Qt class (a base named Q...)."""
+    def base_name(base: ast.expr) -> str:
+        return base.attr if isinstance(base, ast.Attribute) else getattr(base, "id", "")
+    return [node.name for node in ast.parse(path.read_text(encoding="utf-8")).body
+            if isinstance(node, ast.ClassDef)
+            and any(base_name(b).startswith("Q") for b in node.bases)]
+
+
+@pytest.mark.parametrize("folder", ["app/widgets", "app/panels"])
+def test_one_qt_control_per_module(folder: str) -> None:
+    modules = {path.name: _qt_classes(path) for path in sorted((PACKAGE / folder).glob("*.py"))}
+    assert any(modules.values())
+    assert {name: found for name, found in modules.items() if len(found) > 1} == {}

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from PySide6.QtCore import QLockFile, QObject, QStandardPaths, QTimer
 
-from sweepedit.app.document import Document
+from sweepedit.app.document import Connections, Document
 from sweepedit.errors import FileFormatError
 from sweepedit.geometry.model import Abstraction
 
@@ -133,8 +133,9 @@ class Autosaver(QObject):
         self._timer.setSingleShot(True)
         self._timer.setInterval(int(interval_ms))
         self._timer.timeout.connect(self.write_now)
-        doc.edited.connect(self.schedule)
-        doc.path_changed.connect(self.schedule)
+        self._links = Connections()
+        self._links.connect(doc.edited, self.schedule)
+        self._links.connect(doc.path_changed, self.schedule)
 
     # -- writing ----------------------------------------------------------------------
     def schedule(self) -> None:
@@ -182,6 +183,7 @@ class Autosaver(QObject):
     def shutdown(self) -> None:
         """At a clean exit: no file left, the lock released."""
         self.enabled = False
+        self._links.disconnect_all()
         self.remove()
         if self._lock is not None:
             self._lock.unlock()  # removes the lock file

@@ -44,10 +44,35 @@ class Signal:
         if slot in self._slots:
             self._slots.remove(slot)
 
+    def receivers(self) -> int:
+        """How many slots are connected (as QObject.receivers)."""
+        return len(self._slots)
+
     def emit(self, *args: Any) -> None:
         # A copy, so that a slot may disconnect itself while the signal is emitted.
         for slot in list(self._slots):
             slot(*args)
+
+
+class Connections:
+    """The slots one view connected to a Document's signals. A Document outlives its
+    views (panels, the 3D scene, the heat map), so a view that closes disconnects them
+    all: a signal must never call into a view that is gone."""
+
+    def __init__(self) -> None:
+        self._links: list[tuple[Signal, Callable[..., Any]]] = []
+
+    def connect(self, signal: Signal, slot: Callable[..., Any]) -> None:
+        signal.connect(slot)
+        self._links.append((signal, slot))
+
+    def disconnect_all(self) -> None:
+        for signal, slot in self._links:
+            signal.disconnect(slot)
+        self._links.clear()
+
+    def __len__(self) -> int:
+        return len(self._links)
 
 
 def field_kind(name: str) -> str:

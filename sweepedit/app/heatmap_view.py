@@ -23,7 +23,7 @@ import vtk
 from PySide6.QtCore import QObject, Signal
 
 from sweepedit.app.background import DebouncedJob
-from sweepedit.app.document import Document
+from sweepedit.app.document import Connections, Document
 from sweepedit.app.scene import SweepScene, shape_polydata
 from sweepedit.geometry.model import SweepPrimitive
 
@@ -110,6 +110,7 @@ class HeatMapView(QObject):
         self._vertices: np.ndarray | None = None
         self._actor: vtk.vtkActor | None = None
         self._closed = False
+        self._links = Connections()  # to the Document, while the map is shown
 
         self.lut = diverging_lut()
         self.scalar_bar = vtk.vtkScalarBarActor()
@@ -146,27 +147,22 @@ class HeatMapView(QObject):
             if self.doc.shape is None or not self._make_actor():
                 return False
             self.visible = True
-            self.doc.edited.connect(self.request)
-            self.doc.shape_changed.connect(self._on_shape_changed)
-            self.doc.primitives_reset.connect(self._style_primitives)
+            self._links.connect(self.doc.edited, self.request)
+            self._links.connect(self.doc.shape_changed, self._on_shape_changed)
+            self._links.connect(self.doc.primitives_reset, self._style_primitives)
             self.scalar_bar.VisibilityOn()
             self.scene.set_right_margin(BAR_MARGIN)
             self._style_primitives()
             self.request(delay=False)
         else:
             self.visible = False
-            self._disconnect()
+            self._links.disconnect_all()
             self._remove_actor()
             self.scalar_bar.VisibilityOff()
             self.scene.set_right_margin(0.0)
             self._style_primitives()
         self.scene.request_render()
         return True
-
-    def _disconnect(self) -> None:
-        self.doc.edited.disconnect(self.request)
-        self.doc.shape_changed.disconnect(self._on_shape_changed)
-        self.doc.primitives_reset.disconnect(self._style_primitives)
 
     def _make_actor(self) -> bool:
         poly = shape_polydata(self.doc.shape)
@@ -257,8 +253,7 @@ class HeatMapView(QObject):
         """Disconnect from the Document and stop the thread (when the window closes)."""
         if self._closed:
             return
-        if self.visible:
-            self.visible = False
-            self._disconnect()
+        self.visible = False
+        self._links.disconnect_all()
         self._closed = True
         self._job.shutdown(wait_ms)

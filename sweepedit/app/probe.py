@@ -81,7 +81,7 @@ def measure_first_fit(shape_path: str | Path, time_limit: float | None = 3.0,
         started = time.perf_counter()
         show_preview(prims)
         marks.setdefault("first_abstraction", time.perf_counter())
-        thread = window._fit_thread
+        thread = window.fit_control.thread
         if thread is not None and thread.loaded_at is not None:
             marks.setdefault("loaded", thread.loaded_at)
         preview_s.append(time.perf_counter() - started)

@@ -30,7 +30,7 @@ from sweepedit.app.commands import (
     insert_control_point,
     move_control_point,
 )
-from sweepedit.app.document import DISPLAY, GEOMETRY, Document
+from sweepedit.app.document import DISPLAY, GEOMETRY, Connections, Document
 from sweepedit.errors import InvalidPrimitiveError, SweepeditError
 from sweepedit.geometry.mesher import TriangleMesh, sweep_mesh, sweep_meshes
 from sweepedit.geometry.model import SweepPrimitive
@@ -165,12 +165,23 @@ class SweepScene:
         self._primitive_picker.SetTolerance(0.0005)
         self._primitive_picker.PickFromListOn()
 
-        document.primitive_changed.connect(self._on_primitive_changed)
-        document.primitives_reset.connect(self._on_reset)
-        document.selection_changed.connect(self._on_selection_changed)
-        document.shape_changed.connect(self._on_shape_changed)
+        self._links = Connections()
+        self._links.connect(document.primitive_changed, self._on_primitive_changed)
+        self._links.connect(document.primitives_reset, self._on_reset)
+        self._links.connect(document.selection_changed, self._on_selection_changed)
+        self._links.connect(document.shape_changed, self._on_shape_changed)
         self._on_shape_changed()
         self._on_reset()
+
+    def close(self) -> None:
+        """Stop showing the Document, which may outlive this view: disconnect from its
+        signals and from the render window's frames. Call before the view's window is
+        finalized."""
+        self._links.disconnect_all()
+        ren_win = self.plotter.render_window  # None once the view itself has closed
+        if self._render_observer is not None and ren_win is not None:
+            ren_win.RemoveObserver(self._render_observer)
+        self._render_observer = None
 
     # -- overlay --------------------------------------------------------------------------
     def _init_overlay(self) -> None:
@@ -188,7 +199,7 @@ class SweepScene:
         self._overlay = overlay
         # Before every frame: share the (possibly replaced) camera and widen the clipping
         # range to the handles, which may lie outside the meshes the main renderer sees.
-        ren_win.AddObserver("StartEvent", self._before_render)
+        self._render_observer = ren_win.AddObserver("StartEvent", self._before_render)
 
         self._axis_poly = _polyline(np.zeros((AXIS_SAMPLES, 3)))
         self._axis_actor = _line_actor(self._axis_poly, AXIS_COLOR, 3.0)

@@ -1,5 +1,6 @@
-"""The main window: menus, toolbar, the 3D view, side panels, status bar with live metrics,
-background fitting, and file handling (open, save, export, drag-and-drop, recent files).
+"""The main window: menus, toolbar, the 3D view, side panels and status bar with live
+metrics, wired to the document, the background fit (sweepedit.app.fit_control) and the
+heat map; and file handling (open, save, export, drag-and-drop, recent files).
 
 Errors reach the user through `report_error` and questions through `ask_save_changes`;
 tests replace these two methods so that no modal dialog ever blocks them.
@@ -7,13 +8,9 @@ tests replace these two methods so that no modal dialog ever blocks them.
 
 from __future__ import annotations
 
-import atexit
-import contextlib
 import copy
 import errno
-import time
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import pyvista as pv
@@ -47,25 +44,20 @@ from sweepedit.app.commands import (
     DeletePrimitive,
     DeletePrimitives,
     ReplacePrimitives,
-    apply_fit,
     duplicate_primitive,
     mirror_selection,
     new_primitive,
     set_field_many,
 )
-from sweepedit.app.document import Document
+from sweepedit.app.document import Connections, Document
+from sweepedit.app.fit_control import FitControl
 from sweepedit.app.heatmap_view import HeatMapView
 from sweepedit.app.panels import FitPanel, PrimitiveListPanel, PropertiesPanel
 from sweepedit.app.scene import SceneMouse, SweepScene
 from sweepedit.app.worker import (
-    FitThread,
-    FitUpdate,
     MetricsRunner,
     call_keeping_window_live,
-    load_fit_api,
     preload_fit_api,
-    refit_loader,
-    with_locked,
 )
 from sweepedit.errors import SweepeditError
 from sweepedit.geometry.model import Abstraction
@@ -79,25 +71,6 @@ MESH_EXPORT_TYPES = {"OBJ (*.obj)": "obj", "PLY (*.ply)": "ply", "STL (*.stl)": 
 MAX_RECENT = 10
 MULTI_SAMPLES = 0  # anti-aliasing: FXAA, and only on a GPU (see _check_antialiasing)
 SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "swiftshader", "software rasterizer")
-# Fit threads that outlived their window, or a cancel's grace period, kept referenced (see
-# closeEvent and _cancel_deadline): destroying a running QThread aborts the process.
-_orphan_threads: list[FitThread] = []
-# After Cancel, the fit has this long to return its best result; then the last preview
-# (what the user sees) is kept and the fit winds down in the background. Under load the
-# fit's low-priority thread can need seconds to reach its next cancel check (measured:
-# 2-4 s with two CPU burners, in shape preparation); the user gets control in < 1 s.
-CANCEL_GRACE_MS = 400
-
-
-@atexit.register
-def _join_orphan_threads() -> None:
-    """At exit, let fits that were told to stop finish (their cancel is set): a QThread
-    destroyed while it runs aborts the process."""
-    for thread in _orphan_threads:
-        with contextlib.suppress(RuntimeError):  # finished earlier and deleted
-            thread.wait()
-
-
 HELP_TEXT = """<b>Mouse</b><br>
 Left-drag: rotate · Shift+left-drag or middle-drag: pan · wheel / right-drag: zoom<br>
 Click a primitive to select it (Ctrl/Shift+click: add to the selection); drag its white
@@ -176,30 +149,31 @@ class MainWindow(QMainWindow):
         self.heatmap = HeatMapView(self.scene, self.doc, self)
         self.heatmap.failed.connect(lambda m: self.show_status(f"Heat map unavailable: {m}"))
 
-        self._fit_thread: FitThread | None = None
-        self._fit_locked: list[Any] = []
-        self._fit_values: dict[str, Any] = {}
-        self._fit_started = 0.0
-        self.last_fit_result: Any = None
         self.last_metrics: dict | None = None
-        self.last_cancel_timing: dict[str, float] = {}
 
         self._make_actions()
         self._make_menus()
         self._make_toolbar()
         self._make_docks()
         self._make_status_bar()
+        # The window's methods are looked up when called: tests replace them.
+        self.fit_control = FitControl(
+            self.doc, self.stack, self.scene, self.fit_panel,
+            report_error=lambda title, message: self.report_error(title, message),
+            show_status=lambda message, ms: self.show_status(message, ms), parent=self)
+        self.fit_control.running_changed.connect(self._on_fit_running)
 
         self.metrics = MetricsRunner(self)
         self.metrics.updated.connect(self._on_metrics)
         self.metrics.failed.connect(self._on_metrics_failed)
         self.metrics.busy.connect(self._on_metrics_busy)
-        self.doc.edited.connect(self._schedule_metrics)
-        self.doc.dirty_changed.connect(lambda _d: self._update_title())
-        self.doc.path_changed.connect(self._update_title)
-        self.doc.selection_changed.connect(lambda _i: self._update_actions())
-        self.doc.primitives_reset.connect(self._update_actions)
-        self.doc.shape_changed.connect(self._update_actions)
+        self._links = Connections()
+        self._links.connect(self.doc.edited, self._schedule_metrics)
+        self._links.connect(self.doc.dirty_changed, lambda _d: self._update_title())
+        self._links.connect(self.doc.path_changed, self._update_title)
+        self._links.connect(self.doc.selection_changed, lambda _i: self._update_actions())
+        self._links.connect(self.doc.primitives_reset, self._update_actions)
+        self._links.connect(self.doc.shape_changed, self._update_actions)
         self.stack.changed.connect(self._update_actions)
 
         self.setAcceptDrops(True)
@@ -462,7 +436,7 @@ class MainWindow(QMainWindow):
 
     @property
     def fitting(self) -> bool:
-        return self._fit_thread is not None
+        return self.fit_control.running
 
     def _update_actions(self) -> None:
         fitting = self.fitting
@@ -1037,167 +1011,37 @@ class MainWindow(QMainWindow):
         text = self.metrics_label.text().removesuffix("  …")
         self.metrics_label.setText(text + ("  …" if busy else ""))
 
-    # -- fitting --------------------------------------------------------------------------
+    # -- fitting (sweepedit.app.fit_control runs it) --------------------------------------
     def start_fit(self, values: dict[str, Any], refit: list[int] | None = None) -> bool:
-        """Start a background fit with the fit panel's values; False if it cannot start.
-        refit: indices of primitives to refit with all the others fixed, instead.
-
-        Nothing here imports torch: the fit thread loads the fitting code itself (or waits
-        for the preload that started with the window) and reports a bad setting or
-        missing fitting code through its failed signal."""
-        if self.fitting:
-            return False
-        if self.doc.shape is None:
-            self.report_error("Cannot fit", "Open a shape first: the fit needs a target.")
-            return False
-        self._fit_values = dict(values)
-        self._fit_preview: Abstraction | None = None
-        # A refit's result holds every primitive (the fixed ones as exact copies).
-        self._fit_locked = ([] if refit is not None
-                            else [p.copy() for p in self.doc.primitives if p.locked])
-        self.stack.close_merge()
-        # load_fit_api is looked up now, so that tests can substitute a stand-in.
-        load_api = (load_fit_api if refit is None
-                    else refit_loader([p.copy() for p in self.doc.primitives], list(refit)))
-        thread = FitThread(self.doc.shape, dict(values), self._fit_locked, parent=self,
-                           load_api=load_api)
-        thread.note.connect(self._on_fit_note)
-        thread.progress.connect(self._on_fit_progress)
-        thread.done.connect(self._on_fit_done)
-        thread.failed.connect(self._on_fit_failed)
-        thread.finished.connect(self._on_fit_thread_finished)
-        self._fit_thread = thread
-        self._fit_started = time.perf_counter()
-        self.fit_panel.begin()
-        self.props_panel.set_editable(False)
-        self._update_actions()
-        self.metrics.cancel()
-        thread.start()
-        return True
+        """Start a background fit with the fit panel's values (or refit the primitives
+        `refit`, the others held); False if it cannot start."""
+        return self.fit_control.start(values, refit)
 
     def cancel_fit(self) -> None:
-        """Stop the fit; its best result so far is applied when it returns."""
-        if self._fit_thread is not None:
-            thread = self._fit_thread
-            thread.cancel()
-            self.fit_panel.status.setText("Cancelling… (keeping the best result)")
-            QTimer.singleShot(CANCEL_GRACE_MS, lambda: self._cancel_deadline(thread))
+        self.fit_control.cancel()
 
-    def _cancel_deadline(self, thread: FitThread) -> None:
-        """The cancelled fit has not returned in time: keep the last preview it reported
-        (or nothing, if it reported none) and let the thread finish in the background."""
-        if self._fit_thread is not thread or not thread.isRunning():
-            return
-        for signal in (thread.note, thread.progress, thread.done, thread.failed):
-            signal.disconnect()
-        thread.setParent(None)
-        _orphan_threads.append(thread)
-        preview = self._fit_preview
-        self.last_cancel_timing = {"detached_s": time.perf_counter()
-                                   - (thread.cancel_requested_at or time.perf_counter())}
-        if preview is None:
-            self._on_fit_done(None)
-            return
-        self._on_fit_done(SimpleNamespace(
-            abstraction=preview, seconds=time.perf_counter() - self._fit_started,
-            timed_out=False))
-
-    def _on_fit_note(self, text: str) -> None:
-        if self._fit_thread is not None and not self._fit_thread.cancel_event.is_set():
-            self.fit_panel.status.setText(text)
-
-    def _on_fit_progress(self, update: FitUpdate) -> None:
-        if self._fit_thread is None:
-            return
-        if not self._fit_thread.cancel_event.is_set():  # keep "Cancelling…" up
-            self.fit_panel.show_progress(update)
-        if update.abstraction is not None:
-            self._fit_preview = update.abstraction  # kept if a cancel cannot wait
-            # Every report carries a complete abstraction, the first one (the warm start)
-            # included: the scene shows it at once and each later one replaces it.
-            self.scene.show_preview(with_locked(update.abstraction, self._fit_locked))
-
-    def _on_fit_done(self, result: Any) -> None:
-        if self._fit_thread is None:  # the window closed meanwhile
-            return
-        thread = self._fit_thread
-        cancelled = thread.cancel_event.is_set()
-        if result is None:  # cancelled before the fit began
-            self.scene.end_preview()
-            self._finish_fit()
-            self.fit_panel.finish("Cancelled before the fit began; nothing changed.")
-            return
-        self.last_fit_result = result
-        if cancelled and thread.cancel_requested_at and thread.returned_at:
-            self.last_cancel_timing = {"fit_returned_s": thread.returned_at
-                                       - thread.cancel_requested_at}
-        self.scene.end_preview()
-        prims = with_locked(result.abstraction, self._fit_locked)
-        seconds = float(getattr(result, "seconds", time.perf_counter() - self._fit_started))
-        timed_out = bool(getattr(result, "timed_out", False))
-        record = dict(result.abstraction.fit or {})
-        record.update({k: v for k, v in self._fit_values.items() if k not in record})
-        record.setdefault("seconds", seconds)
-        record["cancelled"] = cancelled
-        self._finish_fit()
-        try:
-            self.stack.push(apply_fit(self.doc, prims, record))
-        except SweepeditError as exc:
-            self.report_error("Fit result rejected", str(exc))
-            self.fit_panel.finish("The fit returned invalid primitives.")
-            return
-        self.doc.select(None)
-        how = ("Cancelled; kept the best result" if cancelled
-               else "Time limit reached; kept the best result" if timed_out else "Done")
-        message = f"{how}: {len(prims)} primitives in {seconds:.1f} s (Ctrl+Z undoes it)"
-        shortfall = fewer_primitives_text(self._fit_values.get("primitives"),
-                                          len(prims) - len(self._fit_locked),
-                                          cancelled or timed_out)
-        if shortfall:
-            message = f"{message}. {shortfall}"
-        self.fit_panel.finish(message)
-        self.show_status(shortfall or message, 15000)
-
-    def _on_fit_failed(self, message: str) -> None:
-        if self._fit_thread is None:
-            return
-        self.scene.end_preview()
-        self._finish_fit()
-        self.fit_panel.finish("Fit failed.")
-        self.report_error("Fit failed", message)
-
-    def _finish_fit(self) -> None:
-        self._fit_thread = None
-        self.props_panel.set_editable(True)
+    def _on_fit_running(self, running: bool) -> None:
+        self.props_panel.set_editable(not running)
         self._update_actions()
-
-    def _on_fit_thread_finished(self) -> None:
-        sender = self.sender()
-        if isinstance(sender, FitThread):
-            sender.deleteLater()
+        if running:
+            self.metrics.cancel()
 
     # -- closing --------------------------------------------------------------------------
     def closeEvent(self, event: QCloseEvent) -> None:  # noqa: N802 (Qt API)
         if not self.maybe_save():
             event.ignore()
             return
-        thread = self._fit_thread
-        if thread is not None:
-            for signal in (thread.note, thread.progress, thread.done, thread.failed):
-                signal.disconnect()
-            thread.cancel()
-            if not thread.wait(5000):
-                # Still importing torch (a slow first start): destroying a running QThread
-                # aborts the process, so it outlives the window (a few seconds).
-                thread.setParent(None)
-                _orphan_threads.append(thread)
-            self._fit_thread = None
+        self.fit_control.shutdown()
         step_job = getattr(self, "_step_job", None)
         if step_job is not None:  # cancelled between steps; it writes nothing then
             step_job.cancel()
             step_job.wait()
         self.metrics.shutdown()
         self.heatmap.close()
+        self.scene.close()
+        for panel in (self.list_panel, self.props_panel):
+            panel.document_links.disconnect_all()
+        self._links.disconnect_all()
         self.autosave.shutdown()  # a clean exit leaves no recovery file
         self.plotter.close()
         event.accept()
@@ -1283,23 +1127,6 @@ def save_failure_text(exc: BaseException, path: Path) -> str:
     if isinstance(exc, SweepeditError):  # the format cannot hold it; its message says why
         return f"{what}: {str(exc).removeprefix(f'{path}: ')}"
     return f"{what}: {exc} ({type(exc).__name__})"
-
-
-def fewer_primitives_text(asked: Any, got: int, stopped: bool) -> str:
-    """Why a fit gave fewer primitives than asked for; '' when it did not."""
-    try:
-        asked = int(asked)
-    except (TypeError, ValueError):
-        return ""
-    if got >= asked:
-        return ""
-    plural = "s" if asked != 1 else ""
-    if stopped:
-        why = ("the fit was stopped before it had placed them all; it keeps the best "
-               "result so far (run it again to let it finish)")
-    else:
-        why = ("the fit drops primitives that add nothing the others do not already cover")
-    return f"Asked for {asked} primitive{plural}, got {got}: {why}."
 
 
 def _describe(exc: BaseException, path: Path) -> str:

@@ -331,7 +331,7 @@ def test_property_panel_and_shortcuts_edit_through_commands(qtbot, window, small
     from PySide6.QtCore import Qt
     from PySide6.QtGui import QColor
 
-    import sweepedit.app.panels as panels
+    import sweepedit.app.panels.properties as properties_panel
 
     window.open_path(small_files["json"])
     window.doc.select(1)
@@ -368,7 +368,7 @@ def test_property_panel_and_shortcuts_edit_through_commands(qtbot, window, small
     panel.scaling_widgets[0].spin.setValue(-0.5)
     assert window.doc.primitive(1).scaling == pytest.approx((-0.2, -0.5))
     assert panel.scaling_widgets[0].value() == pytest.approx(-0.2)
-    monkeypatch.setattr(panels.QColorDialog, "getColor",
+    monkeypatch.setattr(properties_panel.QColorDialog, "getColor",
                         staticmethod(lambda *args, **kwargs: QColor("#102030")))
     panel.choose_color()
     assert window.doc.primitive(1).color == "#102030"
@@ -495,7 +495,7 @@ def test_fit_wiring_preview_cancel_apply_undo(qtbot, window, small_files, monkey
     """The worker, preview, cancel and undoable apply, against a stand-in fit."""
     from dataclasses import dataclass
 
-    import sweepedit.app.window as window_module
+    import sweepedit.app.fit_control as fit_control_module
 
     @dataclass
     class Settings:
@@ -505,7 +505,7 @@ def test_fit_wiring_preview_cancel_apply_undo(qtbot, window, small_files, monkey
         seed: int = 0
         restarts: int = 1
 
-    monkeypatch.setattr(window_module, "load_fit_api", lambda: (fake_fit, Settings))
+    monkeypatch.setattr(fit_control_module, "load_fit_api", lambda: (fake_fit, Settings))
     window.open_path(small_files["obj"])
     window.open_path(small_files["json"])
     window.stack.push(set_field(window.doc, 0, "locked", True, merge=False))
@@ -535,7 +535,7 @@ def test_a_failing_fit_shows_an_error_and_the_app_goes_on(qtbot, window, small_f
                                                           monkeypatch) -> None:
     from dataclasses import dataclass
 
-    import sweepedit.app.window as window_module
+    import sweepedit.app.fit_control as fit_control_module
 
     @dataclass
     class Settings:
@@ -550,7 +550,7 @@ def test_a_failing_fit_shows_an_error_and_the_app_goes_on(qtbot, window, small_f
         time.sleep(0.2)
         raise RuntimeError("the optimiser diverged")
 
-    monkeypatch.setattr(window_module, "load_fit_api", lambda: (broken_fit, Settings))
+    monkeypatch.setattr(fit_control_module, "load_fit_api", lambda: (broken_fit, Settings))
     window.open_path(small_files["obj"])
     window.open_path(small_files["json"])
     before = window.doc.abstraction.copy()
@@ -567,7 +567,7 @@ def test_a_failing_fit_shows_an_error_and_the_app_goes_on(qtbot, window, small_f
     assert window.props_panel.cp_group.isEnabled()
     assert window.scene.drag_control_point(0, 1, [0.0, 0.05, 0.0])
     assert len(window.stack) == 1
-    monkeypatch.setattr(window_module, "load_fit_api", lambda: (fake_fit, Settings))
+    monkeypatch.setattr(fit_control_module, "load_fit_api", lambda: (fake_fit, Settings))
     assert window.start_fit({"primitives": 3, "iterations": 20, "seed": 0})
     qtbot.waitUntil(lambda: not window.fitting, timeout=10000)
     assert len(window.errors) == 1 and len(window.doc) == 3
@@ -634,7 +634,7 @@ def test_official_txt_before_its_shape_exports_in_the_shape_frame(qtbot, window,
 def test_closing_during_a_fit_stops_it_cleanly(qtbot, window, small_files, monkeypatch) -> None:
     from dataclasses import dataclass
 
-    import sweepedit.app.window as window_module
+    import sweepedit.app.fit_control as fit_control_module
 
     @dataclass
     class Settings:
@@ -642,11 +642,11 @@ def test_closing_during_a_fit_stops_it_cleanly(qtbot, window, small_files, monke
         iterations: int = 100000
         seed: int = 0
 
-    monkeypatch.setattr(window_module, "load_fit_api", lambda: (fake_fit, Settings))
+    monkeypatch.setattr(fit_control_module, "load_fit_api", lambda: (fake_fit, Settings))
     window.open_path(small_files["obj"])
     assert window.start_fit({"primitives": 3, "iterations": 100000, "seed": 0})
     qtbot.waitUntil(lambda: window.scene.previewing, timeout=10000)
-    thread = window._fit_thread
+    thread = window.fit_control.thread
     window.close()
     assert not window.isVisible() and thread.isFinished()
     qtbot.wait(100)  # queued results of the stopped fit must not touch the closed view
@@ -811,7 +811,7 @@ def test_qt_calls_keep_python_reference_counts(qtbot) -> None:
     they are immortal and this holds trivially)."""
     import sys
 
-    from sweepedit.app.panels import SliderSpin
+    from sweepedit.app.widgets.slider_spin import SliderSpin
 
     widget = SliderSpin(0.0, 1.0)
     qtbot.addWidget(widget)
@@ -930,7 +930,7 @@ def test_panel_shows_each_stage_its_fraction_and_the_time_left(qtbot, window, sm
     import re
     from dataclasses import dataclass
 
-    import sweepedit.app.window as window_module
+    import sweepedit.app.fit_control as fit_control_module
 
     @dataclass
     class Settings:
@@ -944,18 +944,18 @@ def test_panel_shows_each_stage_its_fraction_and_the_time_left(qtbot, window, sm
         loaded_in.append(threading.current_thread() is threading.main_thread())
         return staged_fit, Settings
 
-    monkeypatch.setattr(window_module, "load_fit_api", load_api)
+    monkeypatch.setattr(fit_control_module, "load_fit_api", load_api)
     window.open_path(small_files["obj"])
     shown: list[tuple] = []
     panel = window.fit_panel
-    on_progress = window._on_fit_progress
+    on_progress = window.fit_control._on_progress
 
     def recording(update) -> None:  # what each report leaves on the screen
         on_progress(update)
         shown.append((update, panel.status.text(), panel.progress.value(),
                       window.scene.previewing, window.scene.n_actors))
 
-    monkeypatch.setattr(window, "_on_fit_progress", recording)
+    monkeypatch.setattr(window.fit_control, "_on_progress", recording)
     assert window.start_fit(panel.values() | {"primitives": 3})
     qtbot.waitUntil(lambda: not window.fitting, timeout=10000)
     assert loaded_in == [False]  # the fit API is loaded in the worker thread
@@ -988,7 +988,7 @@ def test_fit_settings_and_loading_errors_are_reported_from_the_worker(
     builds the settings there; what goes wrong on the way is reported, nothing changes."""
     from dataclasses import dataclass
 
-    import sweepedit.app.window as window_module
+    import sweepedit.app.fit_control as fit_control_module
     from sweepedit.errors import SweepeditError
 
     received: list = []
@@ -1010,7 +1010,7 @@ def test_fit_settings_and_loading_errors_are_reported_from_the_worker(
         received.append(settings)
         return staged_fit(shape, settings, **kwargs)
 
-    monkeypatch.setattr(window_module, "load_fit_api", lambda: (recording_fit, Settings))
+    monkeypatch.setattr(fit_control_module, "load_fit_api", lambda: (recording_fit, Settings))
     window.open_path(small_files["obj"])
     panel = window.fit_panel
     panel.time_limit.setValue(7.0)
@@ -1031,7 +1031,7 @@ def test_fit_settings_and_loading_errors_are_reported_from_the_worker(
     def unavailable():
         raise ImportError("No module named 'torch'")
 
-    monkeypatch.setattr(window_module, "load_fit_api", unavailable)
+    monkeypatch.setattr(fit_control_module, "load_fit_api", unavailable)
     assert window.start_fit(panel.values())
     qtbot.waitUntil(lambda: not window.fitting, timeout=10000)
     assert "Fitting is not available" in window.errors[-1][1]
@@ -1040,7 +1040,7 @@ def test_fit_settings_and_loading_errors_are_reported_from_the_worker(
         time.sleep(0.3)
         return staged_fit, Settings
 
-    monkeypatch.setattr(window_module, "load_fit_api", slow_load)
+    monkeypatch.setattr(fit_control_module, "load_fit_api", slow_load)
     panel.device.setCurrentText("auto")
     assert window.start_fit(panel.values())
     window.cancel_fit()

@@ -274,7 +274,7 @@ def test_fewer_primitives_than_asked_is_explained_after_cancel(qtbot, window, sm
                                                                monkeypatch) -> None:
     from dataclasses import dataclass
 
-    import sweepedit.app.window as window_module
+    import sweepedit.app.fit_control as fit_control_module
 
     @dataclass
     class Settings:
@@ -294,7 +294,7 @@ def test_fewer_primitives_than_asked_is_explained_after_cancel(qtbot, window, sm
                                                         *placed]),
                                seconds=0.2, cancelled=cancel.is_set())
 
-    monkeypatch.setattr(window_module, "load_fit_api", lambda: (short_fit, Settings))
+    monkeypatch.setattr(fit_control_module, "load_fit_api", lambda: (short_fit, Settings))
     window.open_path(small_files["obj"])
     assert window.start_fit(window.fit_panel.values() | {"primitives": 6})
     qtbot.waitUntil(lambda: len(started) >= 2, timeout=10000)
@@ -395,7 +395,7 @@ def test_cancel_returns_control_within_a_second_when_the_fit_is_slow_to_stop(
     import threading
     from dataclasses import dataclass
 
-    import sweepedit.app.window as window_module
+    import sweepedit.app.fit_control as fit_control_module
 
     @dataclass
     class Settings:
@@ -413,7 +413,7 @@ def test_cancel_returns_control_within_a_second_when_the_fit_is_slow_to_stop(
         return SimpleNamespace(abstraction=Abstraction([_primitive(7, "late")]),
                                seconds=5.0, cancelled=True)
 
-    monkeypatch.setattr(window_module, "load_fit_api", lambda: (stubborn_fit, Settings))
+    monkeypatch.setattr(fit_control_module, "load_fit_api", lambda: (stubborn_fit, Settings))
     window.open_path(small_files["obj"])
     window.open_path(small_files["json"])
     before = _snapshot(window.doc)
