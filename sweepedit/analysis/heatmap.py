@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sweepedit.geometry.arrays import as_array
 from sweepedit.geometry.inside import T_SAMPLES, inside_primitive
 from sweepedit.geometry.mesher import sweep_meshes_batch
 from sweepedit.geometry.model import GeometryKey, SweepPrimitive, folds_onto_itself
@@ -198,10 +199,7 @@ class HeatMapper:
     (the k nearest samples), so the result is what a computation from nothing gives."""
 
     def __init__(self, vertices: np.ndarray, t_samples: int = T_SAMPLES) -> None:
-        vertices = np.asarray(vertices, dtype=np.float64)
-        if vertices.ndim != 2 or vertices.shape[1] != 3:
-            raise ValueError(f"vertices must be an (N, 3) array, got shape {vertices.shape}")
-        self.vertices = vertices
+        self.vertices = as_array(vertices, "N, 3", "vertices")
         self.t_samples = t_samples
         self._samples: dict[_Key, BoundarySamples] = {}
         self._inside: dict[_Key, np.ndarray] = {}  # key -> (N,) bool at the vertices

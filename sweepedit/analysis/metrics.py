@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sweepedit.geometry.arrays import as_array
 from sweepedit.geometry.inside import grid_points, inside_primitive, inside_union
 from sweepedit.geometry.mesher import sweep_meshes
 from sweepedit.geometry.model import Abstraction, SweepPrimitive, folds_onto_itself
@@ -42,7 +43,8 @@ def sample_triangles(vertices: np.ndarray, faces: np.ndarray, count: int,
                      rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Area-uniform samples on a triangle mesh: (V, 3), (F, 3) -> points (count, 3)
     and the index of the face each lies on (count,)."""
-    tri = vertices[faces]  # (F, 3, 3)
+    tri = as_array(vertices, "V, 3", "vertices")[as_array(faces, "F, 3", "faces",
+                                                           dtype=np.int64)]  # (F, 3, 3)
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     face = rng.choice(len(faces), size=count, p=area / area.sum())
     r1, r2 = rng.random(count), rng.random(count)
@@ -90,6 +92,8 @@ def outer_surface_samples(primitives: Sequence[SweepPrimitive], count: int = N_S
 def chamfer_and_f1(pred: np.ndarray, target: np.ndarray,
                    taus: Sequence[float] = F1_TAUS) -> dict[str, float]:
     """CD-L1, CD-L2 and F1 at each tau between two point sets (N, 3) and (M, 3)."""
+    pred = as_array(pred, "N, 3", "predicted points")
+    target = as_array(target, "M, 3", "target points")
     d_pred = cKDTree(target).query(pred, k=1, workers=-1)[0]
     d_target = cKDTree(pred).query(target, k=1, workers=-1)[0]
     out = {

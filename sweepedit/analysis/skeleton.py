@@ -41,6 +41,8 @@ import numpy as np
 import scipy.ndimage as ndi
 from skimage.morphology import skeletonize
 
+from sweepedit.geometry.arrays import as_array
+
 NodeKind = Literal["tip", "junction", "loop"]
 
 SPUR_FACTOR = 1.0
@@ -416,9 +418,7 @@ def compute_skeleton(occupancy: np.ndarray, *, spur_factor: float = SPUR_FACTOR,
     dropped unless their skeleton has some length.
     Returns a Skeleton with at least one branch whenever the grid holds a voxel.
     """
-    occ = np.asarray(occupancy, dtype=bool)
-    if occ.ndim != 3 or len(set(occ.shape)) != 1:
-        raise ValueError(f"occupancy must be an (R, R, R) grid, got shape {occ.shape}")
+    occ = as_array(occupancy, "R, R, R", "occupancy", dtype=bool)
     res = occ.shape[0]
     h = 1.0 / res
     if not occ.any():

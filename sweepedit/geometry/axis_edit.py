@@ -31,6 +31,7 @@ from collections.abc import Iterator
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sweepedit.geometry.arrays import as_array
 from sweepedit.geometry.model import MIN_CONTROL_POINTS, SCALING_RANGE, SweepPrimitive
 from sweepedit.geometry.sweep import axis_points, scaling_factor
 
@@ -56,9 +57,7 @@ def bspline_basis(n: int, t: np.ndarray, derivative: int = 0) -> np.ndarray:
     axis = basis @ control_points. Matches sweep.axis_points."""
     if n < MIN_CONTROL_POINTS:
         raise ValueError(f"a quadratic B-spline needs at least 3 control points, got {n}")
-    t = np.asarray(t, dtype=np.float64)
-    if t.ndim != 1:
-        raise ValueError(f"t must be a 1-D array, got shape {t.shape}")
+    t = as_array(t, "T", "t")
     m = n - 2
     tm = np.clip(t, 0.0, 1.0) * m
     j = np.clip(np.floor(tm), 0, m - 1).astype(np.int64)
@@ -85,9 +84,10 @@ def bspline_basis(n: int, t: np.ndarray, derivative: int = 0) -> np.ndarray:
 
 
 def _check_points(control_points: np.ndarray) -> np.ndarray:
-    cp = np.asarray(control_points, dtype=np.float64)
-    if cp.ndim != 2 or cp.shape[1] != 3 or cp.shape[0] < MIN_CONTROL_POINTS:
-        raise ValueError(f"control points must be an (n, 3) array with n >= 3, got {cp.shape}")
+    cp = as_array(control_points, "n, 3", "control points")
+    if cp.shape[0] < MIN_CONTROL_POINTS:
+        raise ValueError(f"a quadratic B-spline needs at least 3 control points, got "
+                         f"{cp.shape[0]}")
     return cp
 
 
@@ -176,11 +176,11 @@ def fit_iterates(target: np.ndarray, n: int, params: np.ndarray,
     """Successive control points (n, 3) of the uniform quadratic spline fitted to the
     polyline target (M, 3): first the least-squares fit at params (M,), then each
     round of projection and refit; the ends of the target are kept exactly."""
-    target = np.asarray(target, dtype=np.float64)
-    u = np.asarray(params, dtype=np.float64)
-    if target.ndim != 2 or target.shape[1] != 3 or u.shape != (len(target),):
-        raise ValueError(f"target must be (M, 3) and params (M,), got {target.shape}, "
-                         f"{u.shape}")
+    target = as_array(target, "M, 3", "target")
+    u = as_array(params, "M", "params")
+    if len(u) != len(target):
+        raise ValueError(f"params must hold one parameter per target point: {len(u)} for "
+                         f"{len(target)}")
     cp = _fit_points(target, u, n)
     yield cp
     for _ in range(iterations):
@@ -341,9 +341,7 @@ def axis_index(axis: int | str) -> int:
 def mirror_points(points: np.ndarray, axis: int | str) -> np.ndarray:
     """(..., 3) points reflected through the plane where coordinate `axis` is 0 (the
     shape's box centre in the normalised frame): that coordinate negated, exactly."""
-    out = np.array(points, dtype=np.float64, copy=True)
-    if out.shape[-1] != 3:
-        raise ValueError(f"points must be (..., 3), got shape {out.shape}")
+    out = as_array(points, "..., 3", "points").copy()
     out[..., axis_index(axis)] *= -1.0
     return out
 

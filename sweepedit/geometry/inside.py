@@ -17,6 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from sweepedit.geometry.arrays import as_array
 from sweepedit.geometry.inside_kernel import mark_inside
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import (
@@ -46,10 +47,7 @@ def _bounding_box(cps: np.ndarray, profile: np.ndarray, scaling: np.ndarray,
 
 def _as_points(points: np.ndarray) -> np.ndarray:
     """points (N, 3) as contiguous float64; a ValueError for any other shape."""
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points must be an (N, 3) array, not {points.shape}")
-    return points
+    return as_array(points, "N, 3", "points", contiguous=True)
 
 
 def inside_primitive(points: np.ndarray, primitive: SweepPrimitive,

@@ -36,6 +36,7 @@ import numba
 import numpy as np
 from scipy.interpolate import BSpline, make_interp_spline
 
+from sweepedit.geometry.arrays import as_array
 from sweepedit.geometry.slices import SlicingPlanes, quarter_turns
 
 # Samples per knot span of a loft's patches, in each direction, and heights tested per
@@ -164,10 +165,7 @@ def star_shaped(curves: np.ndarray) -> np.ndarray:
 def polygon_crosses_itself(curve: np.ndarray) -> bool:
     """Whether two edges of a closed polygon (M, 2) that share no vertex cross (each
     strictly on both sides of the other's line)."""
-    curve = np.ascontiguousarray(curve, dtype=np.float64)
-    if curve.ndim != 2 or curve.shape[1] != 2:
-        raise ValueError(f"a polygon must be an (M, 2) array, not {curve.shape}")
-    return bool(_edges_cross(curve))
+    return bool(_edges_cross(as_array(curve, "M, 2", "a polygon", contiguous=True)))
 
 
 @numba.njit(cache=True, nogil=True)

@@ -37,6 +37,8 @@ from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
+from sweepedit.geometry.arrays import as_array
+
 DEFAULT_RESOLUTION = 64
 DEFAULT_SAMPLES = 32_768
 # Share of the fitting samples drawn near the surface, and how near (in cells).
@@ -117,7 +119,7 @@ def cell_centers(resolution: int = DEFAULT_RESOLUTION) -> np.ndarray:
 
 def point_cells(points: np.ndarray, resolution: int = DEFAULT_RESOLUTION) -> np.ndarray:
     """(N, 3) int64 index of the cell that holds each point, clipped to the grid."""
-    ijk = np.floor((np.asarray(points, dtype=np.float64) + 0.5) * resolution).astype(np.int64)
+    ijk = np.floor((as_array(points, "N, 3", "points") + 0.5) * resolution).astype(np.int64)
     return np.clip(ijk, 0, resolution - 1)
 
 
@@ -145,9 +147,9 @@ def winding_numbers(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray
     a 400-face glyph took 3x longer than the same glyph split finely), so edges longer
     than `max_edge` (normalised units) are split first, which leaves the surface unchanged.
     """
-    V = np.ascontiguousarray(vertices, dtype=np.float64)
-    F = np.ascontiguousarray(faces, dtype=np.int64)
-    Q = np.ascontiguousarray(queries, dtype=np.float64).reshape(-1, 3)
+    V = as_array(vertices, "V, 3", "vertices", contiguous=True)
+    F = as_array(faces, "F, 3", "faces", dtype=np.int64, contiguous=True)
+    Q = as_array(queries, "Q, 3", "queries", contiguous=True)
     if Q.shape[0] == 0:
         return np.zeros(0)
     area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]),
@@ -414,7 +416,7 @@ class PointCloudInside:
 
     def __call__(self, queries: np.ndarray) -> np.ndarray:
         """(Q,) bool inside flags of the (Q, 3) queries."""
-        q = np.asarray(queries, dtype=np.float64).reshape(-1, 3)
+        q = as_array(queries, "Q, 3", "queries")
         h = cell_size(self.resolution)
         ijk = point_cells(q, self.resolution)
         result = self.filled[ijk[:, 0], ijk[:, 1], ijk[:, 2]].copy()
