@@ -53,7 +53,8 @@ from sweepedit.app.document import Connections, Document
 from sweepedit.app.fit_control import FitControl
 from sweepedit.app.heatmap_view import HeatMapView
 from sweepedit.app.panels import FitPanel, PrimitiveListPanel, PropertiesPanel
-from sweepedit.app.scene import SceneMouse, SweepScene
+from sweepedit.app.scene import SweepScene
+from sweepedit.app.scene_mouse import SceneMouse
 from sweepedit.app.worker import (
     MetricsRunner,
     call_keeping_window_live,
