@@ -424,6 +424,9 @@ def _cmd_gui(args: argparse.Namespace) -> int:
 
     if args.select is not None and not args.screenshot:
         raise SweepeditError("--select goes with --screenshot")
+    if args.select is not None and args.select < 1:
+        raise SweepeditError(f"--select {args.select}: primitives are counted from 1, as the "
+                             "app's list names them")
     if len(args.files) > 2:
         raise SweepeditError("gui takes at most two files: a shape and its parameters")
     # The shape first, so that the parameters open onto it (and get metrics).
@@ -432,7 +435,8 @@ def _cmd_gui(args: argparse.Namespace) -> int:
     if args.screenshot:
         if first is None:
             raise SweepeditError("--screenshot needs a file to show")
-        return screenshot(first, args.screenshot, select=args.select, also=also,
+        return screenshot(first, args.screenshot,
+                          select=None if args.select is None else args.select - 1, also=also,
                           heatmap=args.heatmap)
     return run_app(first, recover=args.recover, also=also, heatmap=args.heatmap)
 
@@ -610,7 +614,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "to the primitives (red missed, blue excess)")
     p.add_argument("--screenshot", metavar="PNG", help="write a screenshot and quit")
     p.add_argument("--select", type=int, metavar="N",
-                   help="with --screenshot: show primitive N (from 0) selected, axis and handles")
+                   help="with --screenshot: show primitive N selected (counted from 1, as "
+                   "the app's list names them), with its axis and handles")
     p.add_argument("--recover", choices=("ask", "yes", "no"), default="ask",
                    help="unsaved edits left by an editor that was killed or crashed: ask "
                    "(default), or recover (yes) or keep (no) them without asking")

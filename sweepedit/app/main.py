@@ -12,6 +12,8 @@ from pathlib import Path
 
 from PySide6.QtWidgets import QApplication
 
+from sweepedit.errors import primitive_label
+
 EXAMPLE_NAME = "cactus.off"
 
 
@@ -102,9 +104,10 @@ def screenshot(path_in: str, png_out: str, full_window: bool = True,
                heatmap: bool = False) -> int:
     """Open `path_in` (and `also`, the parameters for a shape), render, write a PNG of the
     window (or only the 3D view) to `png_out` atomically and quit. `select`: the primitive
-    (0-based) shown selected, with its axis and handles; `heatmap`: the heat map of the
-    error shown (waits for it). Returns 0 on success, 1 (with a message on stderr) on
-    failure. Without a display it re-runs itself under xvfb-run when that is installed."""
+    shown selected, with its axis and handles (0-based here; the command line counts from
+    1); `heatmap`: the heat map of the error shown (waits for it). Returns 0 on success,
+    1 (with a message on stderr) on failure. Without a display it re-runs itself under
+    xvfb-run when that is installed."""
     if not has_display():
         return _screenshot_under_xvfb(path_in, png_out, full_window, size, select, also,
                                       heatmap)
@@ -128,8 +131,8 @@ def screenshot(path_in: str, png_out: str, full_window: bool = True,
         if 0 <= select < len(window.doc):
             window.doc.select(select)
         else:
-            errors.append(f"{path_in}: cannot select primitive {select}; the file has "
-                          f"{len(window.doc)} (0 to {len(window.doc) - 1})")
+            errors.append(f"{path_in}: cannot select {primitive_label(select)}; the file has "
+                          f"{len(window.doc)} (1 to {len(window.doc)})")
             ok = False
     if ok:
         window.scene.reset_camera()

@@ -260,3 +260,18 @@ def test_gui_command_takes_at_most_two_files(capsys) -> None:
     assert main(["gui", "a.obj", "b.json", "c.json", "--screenshot", "x.png"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "at most two files" in err[0]
+
+
+def test_gui_select_counts_primitives_from_1_as_their_names_do(capsys, monkeypatch) -> None:
+    import sweepedit.app.main as app_main
+    from sweepedit.cli import main
+
+    asked: list = []
+    monkeypatch.setattr(app_main, "screenshot",
+                        lambda *args, **kwargs: asked.append(kwargs["select"]) or 0)
+    assert main(["gui", "a.json", "--screenshot", "x.png", "--select", "1"]) == 0
+    assert main(["gui", "a.json", "--screenshot", "x.png"]) == 0
+    assert asked == [0, None]  # "primitive 1" is the first, index 0
+    assert main(["gui", "a.json", "--screenshot", "x.png", "--select", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "counted from 1" in err[0]
