@@ -31,10 +31,17 @@ EDITABLE_FIELDS = GEOMETRY_FIELDS | DISPLAY_FIELDS | META_FIELDS
 
 
 class Signal:
-    """A minimal Qt-free signal: connect callables, emit calls them in order."""
+    """A minimal Qt-free signal: connect callables, emit calls them in order.
 
-    def __init__(self) -> None:
+    Every slot runs even when one raises: a view that fails must neither keep the others
+    from following the document nor turn an edit already applied into an exception in
+    the command that applied it (which would leave it out of the undo history). Once
+    all have run, the first exception goes to `on_slot_error` when one is given (the
+    app reports it), else it is raised."""
+
+    def __init__(self, on_slot_error: Callable[[BaseException], None] | None = None) -> None:
         self._slots: list[Callable[..., Any]] = []
+        self.on_slot_error = on_slot_error
 
     def connect(self, slot: Callable[..., Any]) -> None:
         if slot not in self._slots:
@@ -49,9 +56,17 @@ class Signal:
         return len(self._slots)
 
     def emit(self, *args: Any) -> None:
+        failed: BaseException | None = None
         # A copy, so that a slot may disconnect itself while the signal is emitted.
         for slot in list(self._slots):
-            slot(*args)
+            try:
+                slot(*args)
+            except Exception as exc:  # the slot's defect, not the edit's
+                failed = failed or exc
+        if failed is not None:
+            if self.on_slot_error is None:
+                raise failed
+            self.on_slot_error(failed)
 
 
 class Connections:
@@ -160,13 +175,21 @@ class Document:
         self.selection: int | None = None  # the primary selection (the panels show it)
         # Every selected primitive, in the order selected, the primary last (multi-select).
         self.selected_indices: list[int] = []
-        self.primitive_changed = Signal()
-        self.primitives_reset = Signal()
-        self.selection_changed = Signal()
-        self.shape_changed = Signal()
-        self.path_changed = Signal()
-        self.dirty_changed = Signal()
-        self.edited = Signal()
+        # Where a view's failure to follow a change goes (see Signal); None: raised.
+        self.on_view_error: Callable[[BaseException], None] | None = None
+        report = self._view_failed
+        self.primitive_changed = Signal(report)
+        self.primitives_reset = Signal(report)
+        self.selection_changed = Signal(report)
+        self.shape_changed = Signal(report)
+        self.path_changed = Signal(report)
+        self.dirty_changed = Signal(report)
+        self.edited = Signal(report)
+
+    def _view_failed(self, exc: BaseException) -> None:
+        if self.on_view_error is None:
+            raise exc
+        self.on_view_error(exc)
 
     # -- reading -------------------------------------------------------------------------
     @property

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import copy
 import errno
+import sys
+import traceback
 from pathlib import Path
 from typing import Any
 
@@ -133,6 +135,7 @@ class MainWindow(QMainWindow):
 
         self.settings = settings if settings is not None else QSettings("sweepedit", "sweepedit")
         self.doc = Document()
+        self.doc.on_view_error = self.view_failed
         self.stack = CommandStack(self.doc)
         self.autosave = Autosaver(self.doc, recovery_dir, parent=self,
                                   report=lambda message: self.show_status(message, 15000))
@@ -421,6 +424,15 @@ class MainWindow(QMainWindow):
                                "recoverable until this session autosaves its own.")
         box.setDefaultButton(QMessageBox.StandardButton.Yes)
         return box.exec() == QMessageBox.StandardButton.Yes
+
+    def view_failed(self, exc: BaseException) -> None:
+        """A view could not follow a change of the document (a defect in the view): the
+        change stands and can be undone, the other views have followed it; the details
+        go to stderr and a line to the status bar, never a dialog in the middle of a
+        drag."""
+        traceback.print_exception(exc, file=sys.stderr)
+        self.show_status(f"The view could not show that change ({type(exc).__name__}: "
+                         f"{exc}); the change is kept, and Ctrl+Z undoes it.", 15000)
 
     def show_status(self, message: str, timeout_ms: int = 6000) -> None:
         self.statusBar().showMessage(message, timeout_ms)

@@ -61,6 +61,7 @@ def window(qtbot, tmp_path: Path):
     # Recovery files go to the test's folder, never the user's data folder.
     w = MainWindow(settings=settings, recovery_dir=tmp_path / "recovery")
     w.errors = []  # type: ignore[attr-defined]
+    w.doc.on_view_error = None  # a view that fails to follow an edit fails the test
     w.answers = []  # type: ignore[attr-defined]  # queued answers to ask_save_changes
     w.report_error = lambda title, message: w.errors.append((title, message))  # type: ignore[method-assign]
     w.ask_save_changes = lambda: w.answers.pop(0) if w.answers else "discard"  # type: ignore[method-assign]

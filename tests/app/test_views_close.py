@@ -80,3 +80,50 @@ def test_closing_the_window_disconnects_every_view_from_the_document(qtbot, wind
     doc.select(1)
     CommandStack(doc).push(move_control_point(doc, 1, 0, [0.0, -0.25, 0.0]))
     np.testing.assert_array_equal(doc.primitive(1).control_points[0], [0.0, -0.25, 0.0])
+
+
+def test_a_failing_view_neither_stops_the_others_nor_loses_the_edit() -> None:
+    doc = Document(_two_primitives())
+    stack = CommandStack(doc)
+    seen: list[int] = []
+    failures: list[BaseException] = []
+
+    def broken_view(index: int, kind: str) -> None:
+        raise RuntimeError("cannot draw")
+
+    doc.primitive_changed.connect(broken_view)
+    doc.primitive_changed.connect(lambda index, kind: seen.append(index))
+    doc.on_view_error = failures.append
+    before = doc.primitive(0).control_points.copy()
+    stack.push(move_control_point(doc, 0, 1, [0.0, 0.2, 0.0]))
+    # The view after the broken one followed the edit, and the edit is in the history.
+    assert seen == [0] and [str(f) for f in failures] == ["cannot draw"]
+    assert len(stack) == 1 and stack.can_undo
+    stack.undo()
+    np.testing.assert_array_equal(doc.primitive(0).control_points, before)
+    assert seen == [0, 0] and len(failures) == 2
+    # With nobody to tell, the failure is raised, still after every slot has run.
+    doc.on_view_error = None
+    with pytest.raises(RuntimeError, match="cannot draw"):
+        stack.push(move_control_point(doc, 0, 1, [0.0, 0.3, 0.0]))
+    assert seen == [0, 0, 0]
+
+
+@pytest.mark.gui
+def test_the_window_tells_of_a_view_that_failed_and_keeps_the_edit(qtbot, window,
+                                                                     small_files) -> None:
+    window.open_path(small_files["json"])
+    window.doc.on_view_error = window.view_failed  # as the app runs (the fixture raises)
+
+    def broken_view(index: int, kind: str) -> None:
+        raise RuntimeError("cannot draw")
+
+    window.doc.primitive_changed.connect(broken_view)
+    window.stack.push(set_field(window.doc, 0, "a", 0.2, merge=False))
+    assert window.doc.primitive(0).a == 0.2 and len(window.stack) == 1
+    assert "could not show that change (RuntimeError: cannot draw)" in (
+        window.statusBar().currentMessage())
+    assert window.errors == []  # no dialog
+    window.doc.primitive_changed.disconnect(broken_view)
+    window.stack.undo()
+    assert window.doc.primitive(0).a == pytest.approx(0.22)
