@@ -13,11 +13,19 @@ import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sweepedit.errors import SweepeditError
 from sweepedit.io.benchmark_set import BENCHMARK_DIR
+
+if TYPE_CHECKING:  # only for annotations: the command line imports these lazily
+    import threading
+
+    from sweepedit.batch import BatchOptions, BatchReport
+    from sweepedit.fitting.fit import FitProgress, FitSettings
+    from sweepedit.geometry.model import Abstraction
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -50,7 +58,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
-def _export_step(abstraction, args: argparse.Namespace) -> int:
+def _export_step(abstraction: Abstraction, args: argparse.Namespace) -> int:
     """STEP export with a progress bar; Ctrl-C cancels and writes nothing."""
     import threading
 
@@ -92,7 +100,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
-def _int_at_least(minimum: int, multiple_of: int = 1):
+def _int_at_least(minimum: int, multiple_of: int = 1) -> Callable[[str], int]:
     """An argparse type: an int >= minimum (and a multiple of `multiple_of`); a bad value is
     argparse's one-line usage error, not a traceback from deep inside."""
 
@@ -211,7 +219,7 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_cancellable(work, cancel,
+def _run_cancellable(work: Callable[[], object], cancel: threading.Event,
                      notice: str = "cancelling, keeping the best result so far...") -> object:
     """Run work() in a thread; Ctrl-C sets `cancel` (the work returns its best so far, or
     raises) after printing `notice`."""
@@ -238,7 +246,7 @@ def _run_cancellable(work, cancel,
     return box["value"]
 
 
-def _fit_settings(args: argparse.Namespace):
+def _fit_settings(args: argparse.Namespace) -> FitSettings:
     from sweepedit.fitting.fit import FitSettings
 
     return FitSettings(primitives=args.primitives, method=args.method,
@@ -251,7 +259,7 @@ def _fit_settings(args: argparse.Namespace):
                        surface_weight=args.surface_weight)
 
 
-def fit_progress_text(p) -> tuple[str, str]:
+def fit_progress_text(p: FitProgress) -> tuple[str, str]:
     """(description, postfix) of a progress bar for a FitProgress: the stage, its own
     share, the primitives and the time left."""
     left = "" if p.seconds_left is None else f", ~{p.seconds_left:.0f} s left"
@@ -291,7 +299,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     bar = tqdm(total=100, desc="fitting", dynamic_ncols=True, disable=args.quiet,
                bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}")
 
-    def progress(p) -> None:
+    def progress(p: FitProgress) -> None:
         desc, postfix = fit_progress_text(p)
         bar.n = round(100 * p.iteration / max(p.total, 1))
         bar.set_description_str(desc, refresh=False)
@@ -329,7 +337,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 
 def _batch_options(args: argparse.Namespace, outdir: Path, *, resume: bool,
-                   cpus_per_task: int):
+                   cpus_per_task: int) -> BatchOptions:
     from sweepedit.batch import BatchOptions, JobSpec
 
     settings = _fit_settings(args)
@@ -342,7 +350,7 @@ def _batch_options(args: argparse.Namespace, outdir: Path, *, resume: bool,
                         progress=not getattr(args, "quiet", False))
 
 
-def _print_failed(report) -> None:
+def _print_failed(report: BatchReport) -> None:
     for o in report.failed:
         print(f"failed: {o.name}: {o.error}", file=sys.stderr)
 

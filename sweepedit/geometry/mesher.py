@@ -15,11 +15,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sweepedit.geometry.model import SweepPrimitive
 from sweepedit.geometry.sweep import _cross, axis_frames, scaling_factor, superellipse
+
+if TYPE_CHECKING:
+    import trimesh
 
 DISPLAY_STATIONS = 64
 DISPLAY_PROFILE_POINTS = 48
@@ -34,7 +38,7 @@ class TriangleMesh:
     faces: np.ndarray
     normals: np.ndarray
 
-    def to_trimesh(self):  # -> trimesh.Trimesh; imported lazily, trimesh is slow to import
+    def to_trimesh(self) -> trimesh.Trimesh:  # imported lazily: trimesh is slow to import
         import trimesh
 
         return trimesh.Trimesh(self.vertices, self.faces, vertex_normals=self.normals,

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from functools import lru_cache
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -50,6 +50,9 @@ from sweepedit.geometry.sweep import (
     scaling_factor,
     superellipse,
 )
+
+if TYPE_CHECKING:
+    import manifold3d
 
 # Largest turn of the tangent between two stations near a fold (radians), and anywhere:
 # a hull or ruled strip between two rings misses the arc between them by about
@@ -611,8 +614,8 @@ def _star_band_hulls(ends: list[_BandEnd]) -> list[np.ndarray]:
     return out
 
 
-def _primitive_solid(primitive: SweepPrimitive, stations: int, profile_points: int
-                     ):  # -> manifold3d.Manifold | None
+def _primitive_solid(primitive: SweepPrimitive, stations: int,
+                     profile_points: int) -> manifold3d.Manifold | None:
     """One primitive's solid as a manifold3d.Manifold (None if it has no volume)."""
     import manifold3d as m3d
 
