@@ -177,6 +177,8 @@ def main() -> int:
     w = MainWindow(settings=settings)
     w.report_error = lambda title, message: print(f"error: {title}: {message}")
     w.ask_save_changes = lambda: "discard"
+    # Section 4 opens another shape over the fitted primitives: no modal question.
+    w.ask_keep_primitives = lambda _name: "discard"
     w.resize(1600, 1000)
     w.show()
     spin(app, 0.5)
