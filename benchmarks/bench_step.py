@@ -36,13 +36,12 @@ import numpy as np
 from sweepedit.errors import SweepeditError
 from sweepedit.geometry.inside import grid_points, inside_union
 from sweepedit.geometry.model import Abstraction, SweepPrimitive, folds_onto_itself
+from sweepedit.geometry.volumes import closed_form_volume, monte_carlo_volume
 from sweepedit.io.occupancy import winding_numbers
 from sweepedit.io.params import read_abstraction
 from sweepedit.io.step_export import (
-    closed_form_volume,
     export_step,
     is_crossing,
-    monte_carlo_volume,
     read_step,
     self_interference,
     solid_volume,

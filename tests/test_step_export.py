@@ -29,20 +29,24 @@ from sweepedit.geometry.model import (
 )
 from sweepedit.geometry.slices import surface_samples
 from sweepedit.geometry.sweep import axis_points
+from sweepedit.geometry.volumes import (
+    FOLD_LOG2_POINTS,
+    FOLD_REPLICATES,
+    UnionVolumes,
+    closed_form_volume,
+    fold_volume,
+    monte_carlo_volume,
+    superellipse_area,
+    union_bounds,
+)
 from sweepedit.io.params import write_abstraction
 from sweepedit.io.step_export import (
     CAD_MISSING,
-    FOLD_LOG2_POINTS,
-    FOLD_REPLICATES,
     ExportCancelledError,
     StepExportError,
-    closed_form_volume,
     export_step,
-    fold_volume,
-    monte_carlo_volume,
     read_step,
     solid_volume,
-    superellipse_area,
 )
 
 DATA = Path(__file__).parent / "data"
@@ -250,18 +254,12 @@ def test_the_solids_a_fuse_left_out_are_found_by_points_inside_them_alone() -> N
     # A fuse of two of three primitives' solids left the third out (wherever it lies:
     # crossing the others or apart); a fuse of all left nothing out; one solid alone
     # left both others out.
-    from sweepedit.io.step_export import (
-        UnionVolumes,
-        _bounds,
-        fuse_solids,
-        left_out,
-        primitive_solid,
-    )
+    from sweepedit.io.step_export import fuse_solids, left_out, primitive_solid
 
     prims = _rod_cross_and_apart()
     solids = [primitive_solid(p) for p in prims]
     volumes = UnionVolumes(prims)
-    size = float(np.linalg.norm(np.subtract(*_bounds(prims))))
+    size = float(np.linalg.norm(np.subtract(*union_bounds(prims))))
     assert left_out(fuse_solids(solids), volumes, None, size) == []
     for k in range(3):
         kept = [s for j, s in enumerate(solids) if j != k]
@@ -307,7 +305,7 @@ def test_a_solid_the_fuse_of_all_left_out_is_fused_back(
 def test_the_union_volume_by_sobol_points_is_the_closed_form_of_disjoint_primitives() -> None:
     # Two primitives apart: the union's volume is the sum of their closed forms, and the
     # randomised quasi-Monte Carlo estimate finds it to within its (small) error.
-    from sweepedit.io.step_export import union_volume
+    from sweepedit.geometry.volumes import union_volume
 
     prims = [SweepPrimitive([[-0.4, 0, 0], [-0.25, 0.1, 0], [-0.1, 0, 0.05]], a=0.06, b=0.04,
                             degree=1.2, scaling=(0.2, -0.3)),
@@ -323,7 +321,6 @@ def test_the_volume_of_a_part_of_a_union_is_its_own_from_the_same_points() -> No
     # A union fused one solid at a time is checked at each step against the volume of
     # the primitives fused so far, taken from the occupancy of all at the same points:
     # each primitive alone is its closed form, two crossing ones less than the sum.
-    from sweepedit.io.step_export import UnionVolumes
 
     rod, cross, apart = _rod_cross_and_apart()
     volumes = UnionVolumes([rod, cross, apart])
@@ -1039,7 +1036,7 @@ def test_a_union_that_no_plain_fuse_gets_right_is_fused_with_a_tolerance(
     export_step(Abstraction(prims), out, union=True)
     # One fuzzy fuse, at the coarser share of the union's size (its box's diagonal):
     # a failing step tries that one first
-    lo, hi = step_export._bounds(prims)
+    lo, hi = union_bounds(prims)
     assert fuzzy_values == [pytest.approx(max(step_export.FUZZY_FUSE_SHARES)
                                           * float(np.linalg.norm(hi - lo)))]
     estimate, error = _monte_carlo(prims, 400_000)
@@ -1090,7 +1087,7 @@ def test_a_union_that_no_fuse_gets_right_is_fused_with_its_solids_nudged(
         return np.array([lo.X(), lo.Y(), lo.Z(), hi.X(), hi.Y(), hi.Z()])
 
     unmoved = real(built)
-    lo, hi = step_export._bounds(prims)
+    lo, hi = union_bounds(prims)
     distance = step_export.NUDGE_SHARE * float(np.linalg.norm(hi - lo))
     assert np.abs(box(union.shape) - box(unmoved)).max() <= distance + 1e-6
 

@@ -29,7 +29,6 @@ axis turns quickly, and profile points for sharp stars.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from functools import lru_cache
 from typing import TYPE_CHECKING, NamedTuple
@@ -50,6 +49,7 @@ from sweepedit.geometry.sweep import (
     scaling_factor,
     superellipse,
 )
+from sweepedit.geometry.volumes import superellipse_area
 
 if TYPE_CHECKING:
     import manifold3d
@@ -128,7 +128,8 @@ def solid_stations(primitive: SweepPrimitive, stations: int = DISPLAY_STATIONS) 
     # thickness over the reach is taken as the profile's area over that of the circle of
     # its reach: b / a for an ellipse, much less for a sharp star's spikes.
     reach = max(primitive.a, primitive.b)
-    thickness = _superellipse_area(primitive.degree) * primitive.a * primitive.b / (np.pi * reach)
+    thickness = (superellipse_area(1.0, 1.0, primitive.degree) * primitive.a * primitive.b
+                 / (np.pi * reach))
     thin = float(np.sqrt(8.0 * THICKNESS_ERROR * thickness / reach))
     fine = _turning_stations(cps, min(MAX_TURN, thin))
     xy = np.stack(superellipse(np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False),
@@ -210,17 +211,12 @@ def profile_angles(degree: float, points: int) -> np.ndarray:
     return angles
 
 
-def _superellipse_area(degree: float) -> float:
-    """Area of the superellipse with a = b = 1: 4 Γ(1 + 1/d)^2 / Γ(1 + 2/d)."""
-    return 4.0 * math.gamma(1.0 + 1.0 / degree) ** 2 / math.gamma(1.0 + 2.0 / degree)
-
-
 @lru_cache(maxsize=64)
 def solid_profile_points(degree: float, requested: int = DISPLAY_PROFILE_POINTS) -> int:
     """Points around the solid's profile polygon: at least `requested`, more (up to
     MAX_PROFILE_POINTS) until the polygon's area is within PROFILE_AREA_TOLERANCE of the
     superellipse's; only sharp stars need more."""
-    exact = _superellipse_area(degree)
+    exact = superellipse_area(1.0, 1.0, degree)
     points = requested
     while points < MAX_PROFILE_POINTS:
         x, y = superellipse(profile_angles(degree, points), np.array([[1.0, 1.0, degree]]))

@@ -14,7 +14,8 @@ and the pieces are joined with knots of full multiplicity; stations are added un
 control curves are within a tolerance of the exact ones at every midpoint.
 
 Every solid is checked with OpenCascade's analyser and against its volume in closed form
-(the profile's area times the integral of f(t)^2 |s'(t)|, exact when nothing folds)
+(geometry/volumes.py: the profile's area times the integral of f(t)^2 |s'(t)|, exact when
+nothing folds)
 before anything is written; a union is checked against a Monte Carlo estimate from the
 exact inside test. What is written is read back and checked again: each solid's volume,
 and each primitive's solid for crossing itself (OpenCascade's self-interference check),
@@ -48,7 +49,6 @@ import numpy as np
 from scipy.interpolate import make_interp_spline
 
 from sweepedit.errors import SweepeditError
-from sweepedit.geometry.inside import inside_union
 from sweepedit.geometry.loft import LoftVerdict, SideSurface, loft_verdict, ring_loft
 from sweepedit.geometry.model import (
     Abstraction,
@@ -68,9 +68,15 @@ from sweepedit.geometry.solid import profile_angles
 from sweepedit.geometry.sweep import (
     axis_frames,
     axis_points,
-    bezier_segments,
     scaling_factor,
     superellipse,
+)
+from sweepedit.geometry.volumes import (
+    UnionVolumes,
+    closed_form_volume,
+    fold_volume,
+    superellipse_area,
+    union_bounds,
 )
 from sweepedit.io.params import atomic_write_bytes, require_folder
 from sweepedit.io.step_workers import build_all
@@ -99,22 +105,16 @@ MAX_SEGMENT_STATIONS = 257
 VOLUME_PRECISION = 1e-3
 # A solid's volume must match the closed form this closely (relative).
 VOLUME_TOLERANCE = 1e-3
-# The union's volume must match the quasi-Monte Carlo estimate (union_volume: 8
-# scrambled Sobol sets of 2^15 points) this closely (relative), besides how far its solids'
-# own volumes are from their primitives', or by UNION_SIGMAS standard errors of the
-# estimate where that is larger. At 1 %, with plain Monte Carlo's 0.5 % error taking it
-# to 2 %, fuzzy fuses that dropped 0.7 % of glyph_8.json's union passed (IoU 0.9907, under
-# the 0.995 wanted; BENCHMARKS.md, STEP export).
+# The union's volume must match the quasi-Monte Carlo estimate (geometry.volumes.
+# union_volume: 8 scrambled Sobol sets of 2^15 points) this closely (relative), besides how
+# far its solids' own volumes are from their primitives', or by UNION_SIGMAS standard
+# errors of the estimate where that is larger. At 1 %, with plain Monte Carlo's 0.5 % error
+# taking it to 2 %, fuzzy fuses that dropped 0.7 % of glyph_8.json's union passed (IoU
+# 0.9907, under the 0.995 wanted; BENCHMARKS.md, STEP export).
 UNION_TOLERANCE = 0.005
 UNION_SIGMAS = 4.0
-UNION_REPLICATES = 8
-UNION_LOG2_POINTS = 15
-# Plain Monte Carlo points (monte_carlo_volume, a check independent of the above).
-UNION_SAMPLES = 300_000
-# Sweeps whose sections cross: the quasi-Monte Carlo points of their volume (fold_volume),
-# 8 scrambled Sobol sets of 2^14, and the tolerance of their check.
-FOLD_REPLICATES = 8
-FOLD_LOG2_POINTS = 14
+# Sweeps whose sections cross: how close their solid's volume must be to the estimate
+# (geometry.volumes.fold_volume).
 FOLD_VOLUME_TOLERANCE = 0.01
 # How many families of slicing planes are tried with end stubs before any without.
 STUB_FAMILIES = 5
@@ -164,7 +164,6 @@ SEW_TOLERANCE = 1e-7
 # as far apart as the sheets that meet).
 SAME_POINT_SHARE = 1e-6
 SAME_POINT_STEPS = 8
-_GAUSS = np.polynomial.legendre.leggauss(48)
 
 Progress = Callable[[float, str], None]
 # What a solid read back from its file is checked for besides its volume (_read_back_checked).
@@ -206,34 +205,6 @@ def _occ() -> Any:
     for printer in Message.DefaultMessenger_s().Printers():
         printer.SetTraceLevel(Message_Gravity.Message_Fail)
     return OCP
-
-
-# --------------------------------------------------------------------------- closed form
-
-
-def superellipse_area(a: float, b: float, degree: float) -> float:
-    """Area of |x/a|^d + |y/b|^d <= 1: 4 a b Γ(1 + 1/d)^2 / Γ(1 + 2/d)."""
-    return 4.0 * a * b * math.gamma(1.0 + 1.0 / degree) ** 2 / math.gamma(1.0 + 2.0 / degree)
-
-
-def closed_form_volume(primitive: SweepPrimitive) -> float:
-    """The volume of a primitive that does not fold: area * ∫ f(t)^2 |s'(t)| dt.
-
-    The Jacobian of the sweep is f^2 |s'| (1 - o . q(t)) at profile point o; the profile is
-    centrally symmetric, so o . q integrates to zero over it. Gauss-Legendre per Bezier
-    segment (each smooth inside: a polynomial times the root of a quadratic), 48 nodes.
-    """
-    p0, p1, p2 = (x[0] for x in bezier_segments(primitive.control_points[None]))
-    m = len(p0)
-    nodes, weights = _GAUSS
-    u = 0.5 * (nodes + 1.0)  # (G,) on [0, 1]
-    total = 0.0
-    for j in range(m):
-        speed = np.linalg.norm(2.0 * ((1.0 - u)[:, None] * (p1[j] - p0[j])
-                                      + u[:, None] * (p2[j] - p1[j])), axis=1)  # |ds/du|
-        f = scaling_factor(primitive.scaling_array, (j + u) / m)[0]
-        total += 0.5 * float(np.sum(weights * f**2 * speed))
-    return superellipse_area(primitive.a, primitive.b, primitive.degree) * total
 
 
 # --------------------------------------------------------------------------- profile
@@ -669,115 +640,6 @@ def _slicing_attempts(families: Iterator[SlicingPlanes], stubs: bool
         yield planes, False
 
 
-def fold_volume(primitive: SweepPrimitive, replicates: int = FOLD_REPLICATES,
-                log2_points: int = FOLD_LOG2_POINTS, seed: int = 0) -> tuple[float, float]:
-    """Volume of one primitive by the exact inside test at randomised quasi-Monte Carlo
-    points -> (estimate, standard error), in the normalised frame. Remembered by the
-    primitive's geometry: a union's check asks again for the primitives it built.
-
-    In a box aligned with the axis' principal directions (sobol_volume): a thin diagonal
-    primitive fills its own box several times better than the coordinate box. On the
-    122 folding primitives of the official files and the K = 8 fits the standard error is
-    0.05-0.28 % (median 0.13 %) from 131k points in 0.08 s (median), where plain Monte
-    Carlo needed 0.4-2M points and 1-1.8 s for 0.21-0.26 % (BENCHMARKS.md, STEP export)."""
-    key = (primitive.geometry_key(), replicates, log2_points, seed)
-    if key in _FOLD_VOLUMES:
-        return _FOLD_VOLUMES[key]
-    t = np.linspace(0.0, 1.0, 513)
-    centres = axis_points(primitive.control_points[None], t)[0]
-    reach = scaling_factor(primitive.scaling_array, t)[0] * math.hypot(primitive.a,
-                                                                       primitive.b)
-    gap = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).max())  # between samples
-    middle = centres.mean(axis=0)
-    _, _, directions = np.linalg.svd(centres - middle, full_matrices=False)  # rows
-    along = (centres - middle) @ directions.T
-    lo = (along - reach[:, None]).min(axis=0) - gap
-    hi = (along + reach[:, None]).max(axis=0) + gap
-    volume = sobol_volume([primitive], middle, directions, lo, hi, replicates, log2_points,
-                          seed)
-    while len(_FOLD_VOLUMES) >= _FOLD_VOLUMES_KEPT:
-        del _FOLD_VOLUMES[next(iter(_FOLD_VOLUMES))]
-    _FOLD_VOLUMES[key] = volume
-    return volume
-
-
-_FOLD_VOLUMES: dict[tuple, tuple[float, float]] = {}
-_FOLD_VOLUMES_KEPT = 64
-
-
-def _sobol_sets(middle: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                replicates: int, log2_points: int, seed: int) -> Iterator[np.ndarray]:
-    """`replicates` independently scrambled Sobol sets of 2**log2_points points (each
-    (2**log2_points, 3)) in the box middle (3,) + [lo, hi] (3,) along the rows of
-    directions (3, 3), orthonormal."""
-    from scipy.stats import qmc
-
-    for k in range(replicates):
-        unit = qmc.Sobol(3, scramble=True, seed=seed + k).random_base2(log2_points)
-        yield middle + (lo + unit * (hi - lo)) @ directions
-
-
-def _replicated(shares: np.ndarray, box: float) -> tuple[float, float]:
-    """The volume from the shares (R,) of independent replicates' points inside, in a box
-    of volume `box` -> (estimate, standard error from their spread)."""
-    return (float(shares.mean()) * box,
-            float(shares.std(ddof=1)) / math.sqrt(len(shares)) * box)
-
-
-def sobol_volume(primitives: Sequence[SweepPrimitive], middle: np.ndarray,
-                 directions: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                 replicates: int, log2_points: int, seed: int = 0) -> tuple[float, float]:
-    """Volume of the union of primitives within the box middle (3,) + [lo, hi] (3,) along
-    the rows of directions (3, 3), orthonormal, by the exact inside test at `replicates`
-    independently scrambled Sobol sets of 2**log2_points points -> (estimate, standard
-    error from the spread of the replicates). The occupancy's boundary is smooth, so such
-    points converge faster than random ones."""
-    shares = [inside_union(points, primitives).mean()
-              for points in _sobol_sets(middle, directions, lo, hi, replicates, log2_points,
-                                        seed)]
-    return _replicated(np.array(shares), float(np.prod(hi - lo)))
-
-
-class UnionVolumes:
-    """The volume of the union of any of `primitives`, as sobol_volume estimates it in
-    the bounding box of all (UNION_REPLICATES sets of 2**UNION_LOG2_POINTS points), in
-    the normalised frame: each primitive's occupancy at the points is kept, so that a
-    union fused one solid at a time is checked at every step for one inside test a
-    primitive (0.1-0.3 s for 6-10 primitives). glyph_8.json's K = 8 fit: 0.095 % from
-    262k points in 0.2 s, where plain Monte Carlo (monte_carlo_volume) gave 0.52 % from
-    300k in 0.26 s (BENCHMARKS.md, STEP export)."""
-
-    def __init__(self, primitives: Sequence[SweepPrimitive]) -> None:
-        lo, hi = _bounds(primitives)
-        self._box = float(np.prod(hi - lo))
-        self.count = len(primitives)
-        sets = list(_sobol_sets(np.zeros(3), np.eye(3), lo, hi, UNION_REPLICATES,
-                                UNION_LOG2_POINTS, 0))
-        self._points = sets[0]  # (P, 3), for only_inside
-        # one (points, primitives) bool table per replicate
-        self._inside = [np.stack([inside_union(points, [p]) for p in primitives], axis=1)
-                        for points in sets]
-
-    def volume(self, members: Sequence[int]) -> tuple[float, float]:
-        """The union of the primitives at indices `members` -> (estimate, standard error)."""
-        columns = list(members)
-        return _replicated(np.array([inside[:, columns].any(axis=1).mean()
-                                     for inside in self._inside]), self._box)
-
-    def only_inside(self, k: int, count: int) -> np.ndarray:
-        """Up to `count` points (n, 3) inside the k-th primitive and no other, spread over
-        that part of it (the first in the Sobol set's order), in the normalised frame."""
-        inside = self._inside[0]
-        alone = inside[:, k] & (inside.sum(axis=1) == 1)
-        return self._points[np.flatnonzero(alone)[:count]]
-
-
-def union_volume(primitives: Sequence[SweepPrimitive]) -> tuple[float, float]:
-    """Volume of the union of primitives -> (estimate, standard error), in the
-    normalised frame (UnionVolumes)."""
-    return UnionVolumes(primitives).volume(range(len(primitives)))
-
-
 def _exact_volume(primitive: SweepPrimitive) -> float:
     """A primitive's volume in the normalised frame: in closed form, or for one whose
     sections cross, fold_volume's estimate."""
@@ -935,34 +797,6 @@ def _face_meets_itself(face: Any, samples: int = 9) -> bool:
 
 
 # --------------------------------------------------------------------------- union
-
-
-def monte_carlo_volume(primitives: Sequence[SweepPrimitive], samples: int = UNION_SAMPLES,
-                       seed: int = 0) -> tuple[float, float]:
-    """Volume of the union by the exact inside test at `samples` uniform points of its
-    bounding box -> (estimate, standard error), in the normalised frame."""
-    lo, hi = _bounds(primitives)
-    rng = np.random.default_rng(seed)
-    inside = 0
-    for start in range(0, samples, 1 << 18):
-        n = min(1 << 18, samples - start)
-        inside += int(inside_union(rng.uniform(lo, hi, size=(n, 3)), primitives).sum())
-    box = float(np.prod(hi - lo))
-    p = inside / samples
-    return p * box, box * math.sqrt(max(p * (1.0 - p), 1.0 / samples) / samples)
-
-
-def _bounds(primitives: Sequence[SweepPrimitive]) -> tuple[np.ndarray, np.ndarray]:
-    """A box (lo, hi (3,)) around the primitives: their control polygons (which hold the
-    axes) padded by the largest profile reach."""
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    t = np.linspace(0.0, 1.0, 257)
-    for p in primitives:
-        reach = float(scaling_factor(p.scaling_array, t).max()) * max(p.a, p.b)
-        lo = np.minimum(lo, p.control_points.min(axis=0) - reach)
-        hi = np.maximum(hi, p.control_points.max(axis=0) + reach)
-    return lo, hi
 
 
 def fuse_solids(solids: Sequence[Any], fuzzy: float = 0.0) -> Any:
@@ -1145,7 +979,7 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
     the new primitive sliced another way (glyph_8.json's 5th). Where that fails too, the
     earlier whole-union attempts follow (BENCHMARKS.md, STEP export)."""
     scale3 = (normalization.scale if normalization else 1.0) ** 3
-    lo, hi = _bounds(primitives)
+    lo, hi = union_bounds(primitives)
     size = float(np.linalg.norm(hi - lo)) * (normalization.scale if normalization else 1.0)
     others = _OtherSolids(builds)
     estimate, error = volumes.volume(range(len(primitives)))
