@@ -22,8 +22,6 @@ def refusal_text(exc: SweepeditError, name: str) -> str:
                 "negative thickness somewhere along its axis. Choose a smaller coefficient.")
     if field.startswith("scaling["):
         return f"{name}: not changed; scaling coefficients stay within {list(SCALING_RANGE)}."
-    if field == "control_points":
-        return f"{name}: not changed; {detail}."
     return f"{name}: not changed; {detail}."
 
 
@@ -55,4 +53,3 @@ class PanelEditor:
             self.report(refusal_text(exc, name))
             return False
         return True
-

@@ -6,7 +6,7 @@ from PySide6.QtCore import QSignalBlocker, Qt, Signal
 from PySide6.QtWidgets import QHBoxLayout, QSlider, QWidget
 
 from sweepedit.app.widgets.property_slider import PropertySlider
-from sweepedit.app.widgets.property_spin_box import PropertySpinBox
+from sweepedit.app.widgets.property_spin_box import number_box
 
 
 class SliderSpin(QWidget):
@@ -28,11 +28,7 @@ class SliderSpin(QWidget):
         self.slider = PropertySlider(Qt.Orientation.Horizontal)
         self.slider.setRange(0, self.STEPS)
         self.slider.setMinimumWidth(90)
-        self.spin = PropertySpinBox()
-        self.spin.setRange(self.lo, self.hi)
-        self.spin.setDecimals(decimals)
-        self.spin.setSingleStep(step)
-        self.spin.setKeyboardTracking(False)
+        self.spin = number_box(self.lo, self.hi, decimals, step)
         self.spin.setMinimumWidth(78)
         layout = QHBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
