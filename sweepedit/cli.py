@@ -428,7 +428,7 @@ def _cmd_train_sweeper(args: argparse.Namespace) -> int:
 
 def _cmd_gui(args: argparse.Namespace) -> int:
     from sweepedit.app.main import run_app, screenshot
-    from sweepedit.app.window import is_parameter_file
+    from sweepedit.io.params import is_parameter_file
 
     if args.select is not None and not args.screenshot:
         raise SweepeditError("--select goes with --screenshot")

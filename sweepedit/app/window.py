@@ -1,15 +1,14 @@
 """The main window: menus, toolbar, the 3D view, side panels and status bar with live
-metrics, wired to the document, the background fit (sweepedit.app.fit_control) and the
-heat map; and file handling (open, save, export, drag-and-drop, recent files).
+metrics, wired to the document, its files (sweepedit.app.file_control), the background
+fit (sweepedit.app.fit_control) and the heat map.
 
-Errors reach the user through `report_error` and questions through `ask_save_changes`;
-tests replace these two methods so that no modal dialog ever blocks them.
+Errors reach the user through `report_error` and questions through `ask_save_changes`,
+`ask_keep_primitives` and `ask_recover`; tests replace these methods so that no modal
+dialog ever blocks them.
 """
 
 from __future__ import annotations
 
-import copy
-import errno
 import sys
 import traceback
 from pathlib import Path
@@ -27,7 +26,6 @@ from PySide6.QtGui import (
     QPainter,
 )
 from PySide6.QtWidgets import (
-    QApplication,
     QCheckBox,
     QDockWidget,
     QFileDialog,
@@ -45,13 +43,13 @@ from sweepedit.app.commands import (
     CommandStack,
     DeletePrimitive,
     DeletePrimitives,
-    ReplacePrimitives,
     duplicate_primitive,
     mirror_selection,
     new_primitive,
     set_field_many,
 )
 from sweepedit.app.document import Connections, Document
+from sweepedit.app.file_control import FileControl, save_failure_text
 from sweepedit.app.fit_control import FitControl
 from sweepedit.app.heatmap_view import HeatMapView
 from sweepedit.app.panels import FitPanel, PrimitiveListPanel, PropertiesPanel
@@ -59,19 +57,12 @@ from sweepedit.app.scene import SweepScene
 from sweepedit.app.scene_mouse import SceneMouse
 from sweepedit.app.worker import (
     MetricsRunner,
-    call_keeping_window_live,
     preload_fit_api,
 )
 from sweepedit.errors import SweepeditError
-from sweepedit.geometry.model import Abstraction
+from sweepedit.io.params import is_parameter_file
 
 APP_NAME = "SweepEdit"
-PARAM_EXTENSIONS = (".json", ".txt")
-SHAPE_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".binvox", ".npy", ".npz",
-                    ".xyz", ".pts")
-MESH_EXPORT_TYPES = {"OBJ (*.obj)": "obj", "PLY (*.ply)": "ply", "STL (*.stl)": "stl",
-                     "GLB (*.glb)": "glb"}
-MAX_RECENT = 10
 MULTI_SAMPLES = 0  # anti-aliasing: FXAA, and only on a GPU (see _check_antialiasing)
 SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "swiftshader", "software rasterizer")
 HELP_TEXT = """<b>Mouse</b><br>
@@ -101,24 +92,6 @@ def _png_bytes(image: QImage) -> bytes:
     image.save(buffer, "PNG")
     buffer.close()
     return bytes(data.data())
-
-
-def is_parameter_file(path: str | Path) -> bool:
-    """Parameters (.json, official .txt) rather than a shape. A .txt may also be a point
-    cloud: official rows hold 14+ numbers, point rows 3 (or 6 with normals)."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".txt":
-        try:
-            with path.open("r", encoding="utf-8", errors="replace") as f:
-                for line in f:
-                    tokens = line.replace(",", " ").split()
-                    if tokens and not line.lstrip().startswith("#"):
-                        return len(tokens) > 6
-        except OSError:
-            return True  # let the parameter reader report it
-        return True
-    return suffix in PARAM_EXTENSIONS
 
 
 class MainWindow(QMainWindow):
@@ -152,6 +125,9 @@ class MainWindow(QMainWindow):
         self.scene.report = self.show_status
         self.heatmap = HeatMapView(self.scene, self.doc, self)
         self.heatmap.failed.connect(lambda m: self.show_status(f"Heat map unavailable: {m}"))
+        self.files = FileControl(self.doc, self.stack, self.autosave, self.settings,
+                                 prompts=self, busy=lambda: self.fitting,
+                                 reset_view=self.scene.reset_camera)
 
         self.last_metrics: dict | None = None
 
@@ -205,31 +181,34 @@ class MainWindow(QMainWindow):
 
     def _make_actions(self) -> None:
         A = self._action
-        self.act_new = A("&New", self.new_document, QKeySequence.StandardKey.New,
+        self.act_new = A("&New", self.files.new_document, QKeySequence.StandardKey.New,
                          "Start anew: no shape, no primitives (asks to save changes first)")
-        self.act_close = A("&Close", self.close_document, QKeySequence.StandardKey.Close,
+        self.act_close = A("&Close", self.files.close_document, QKeySequence.StandardKey.Close,
                            "Close the shape and the primitives (asks to save changes first)")
-        self.act_open_shape = A("Open &shape…", self.open_shape_dialog,
+        self.act_open_shape = A("Open &shape…", self.files.open_shape_dialog,
                                 QKeySequence.StandardKey.Open,
                                 "Open a mesh, voxel grid or point cloud as the target shape")
-        self.act_open_params = A("Open &parameters…", self.open_params_dialog, "Ctrl+Shift+O",
+        self.act_open_params = A("Open &parameters…", self.files.open_params_dialog,
+                                 "Ctrl+Shift+O",
                                  "Open primitives (.json or official SweepNet .txt)")
-        self.act_save = A("&Save", self.save, QKeySequence.StandardKey.Save, "Save the primitives")
-        self.act_save_as = A("Save &As…", self.save_as, "Ctrl+Shift+S",
+        self.act_save = A("&Save", self.files.save, QKeySequence.StandardKey.Save,
+                          "Save the primitives")
+        self.act_save_as = A("Save &As…", self.files.save_as, "Ctrl+Shift+S",
                              "Save the primitives under a new name")
-        self.act_export_union = A("Export mesh (&union)…", lambda: self.export_mesh_dialog(False),
+        self.act_export_union = A("Export mesh (&union)…",
+                                  lambda: self.files.export_mesh_dialog(False),
                                   tip="Export the union of the visible primitives as one mesh")
         self.act_export_parts = A("Export mesh (&per primitive)…",
-                                  lambda: self.export_mesh_dialog(True),
+                                  lambda: self.files.export_mesh_dialog(True),
                                   tip="Export each visible primitive as its own part")
-        self.act_export_txt = A("Export official &txt…", self.export_txt_dialog,
+        self.act_export_txt = A("Export official &txt…", self.files.export_txt_dialog,
                                 tip="Write SweepNet's primitive_parameters.txt format")
         self.act_export_step = A("One solid per &primitive…",
-                                 lambda: self.export_step_dialog(False),
+                                 lambda: self.files.export_step_dialog(False),
                                  tip="Export each visible primitive as a smooth, named, "
                                      "coloured CAD solid in one STEP file")
         self.act_export_step_union = A("&Fused into one solid…",
-                                       lambda: self.export_step_dialog(True),
+                                       lambda: self.files.export_step_dialog(True),
                                        tip="Export the union of the visible primitives as "
                                            "one smooth CAD solid in a STEP file")
         self.act_screenshot = A("Save scree&nshot…", self.screenshot_dialog,
@@ -270,7 +249,8 @@ class MainWindow(QMainWindow):
         file_menu.addAction(self.act_open_shape)
         file_menu.addAction(self.act_open_params)
         self.recent_menu = file_menu.addMenu("Recent &files")
-        self.recent_menu.aboutToShow.connect(self._fill_recent_menu)
+        self.recent_menu.aboutToShow.connect(
+            lambda: self.files.fill_recent_menu(self.recent_menu))
         file_menu.addSeparator()
         file_menu.addAction(self.act_save)
         file_menu.addAction(self.act_save_as)
@@ -478,250 +458,32 @@ class MainWindow(QMainWindow):
         self.list_panel.tree.setEnabled(not fitting)
         self._update_editing_actions()
 
-    # -- files ----------------------------------------------------------------------------
+    # -- files (sweepedit.app.file_control; tests and the CLI call these) ------------------
     def open_path(self, path: str | Path) -> bool:
-        """Open a parameter file (.json, .txt) or a shape (anything else)."""
-        if is_parameter_file(path):
-            return self.open_params(path)
-        return self.open_shape(path)
+        return self.files.open_path(path)
 
     def open_shape(self, path: str | Path, ask: bool = True) -> bool:
-        """Load `path` as the target shape; on failure report it and keep what was there.
-        With primitives shown against another shape, asks whether to keep them (`ask`
-        False: keep them without asking)."""
-        path = Path(path)
-        if self.fitting:
-            return False
-        # Loading voxelises and samples the shape (a second or two): off the GUI thread, so
-        # the window keeps painting while the status bar says what it is doing.
-        self.show_status(f"Loading {path.name}…", 0)
-        QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
-        try:
-            from sweepedit.io.shapes import load_shape
-
-            shape = call_keeping_window_live(lambda: load_shape(path))
-        except Exception as exc:  # any loader failure is the file's, not the app's
-            QApplication.restoreOverrideCursor()
-            self.statusBar().clearMessage()
-            self.report_error("Cannot open shape", _describe(exc, path))
-            return False
-        QApplication.restoreOverrideCursor()
-        self.statusBar().clearMessage()
-        # Primitives shown against another shape: keep them for this one or start anew.
-        # Primitives without a shape yet (an official .txt opened first) simply get it.
-        keep = True
-        if len(self.doc) and self.doc.shape is not None and ask:
-            answer = self.ask_keep_primitives(path.name)
-            if answer == "cancel" or (answer == "discard" and not self.maybe_save()):
-                self.show_status(f"Did not open {path.name}")
-                return False
-            keep = answer == "keep"
-        if not keep:
-            self._clear_document()
-        if keep and len(self.doc) and self.doc.shape is not None:
-            self._adopt_shape(shape, path)
-        else:
-            self.doc.set_shape(shape, path)
-        self.scene.reset_camera()
-        self._add_recent(path)
-        self.show_status(f"Opened shape {path.name}")
-        return True
-
-    def _adopt_shape(self, shape: Any, path: Path) -> None:
-        """Keep the primitives for a new target shape: they stay where they are in the view
-        (the normalised frame), and the document now records this shape's frame and path,
-        not the old shape's; it is a change to save."""
-        self.doc.set_shape(shape, path)
-        normalization = getattr(shape, "normalization", None)
-        if normalization is not None:
-            self.doc.abstraction.normalization = copy.deepcopy(normalization)
-        self.doc.abstraction.source = {"path": str(path)}
-        self.stack.mark_modified()
-
-    def _clear_document(self) -> None:
-        """No primitives, no parameter file, an empty history (New, Close, Discard)."""
-        self.doc.set_abstraction(Abstraction(), None, frame_known=False)
-        self.stack.clear()
-
-    def new_document(self) -> bool:
-        """File > New: no shape, no primitives; False when the user cancels."""
-        if self.fitting or not self.maybe_save():
-            return False
-        self._clear_document()
-        self.doc.set_shape(None, None)
-        self.scene.reset_camera()
-        self.autosave.remove()
-        self.show_status("New document")
-        return True
-
-    def close_document(self) -> bool:
-        """File > Close: the window stays, empty (the same as New in a one-document
-        editor); False when the user cancels."""
-        if not self.new_document():
-            return False
-        self.show_status("Closed; open a shape (Ctrl+O) or parameters (Ctrl+Shift+O)")
-        return True
+        return self.files.open_shape(path, ask)
 
     def open_params(self, path: str | Path, ask: bool = True) -> bool:
-        """Load primitives from `path`; the current ones are replaced (asks to save first)."""
-        path = Path(path)
-        if self.fitting or (ask and not self.maybe_save()):
-            return False
-        try:
-            from sweepedit.io.params import read_abstraction
-
-            abstraction = read_abstraction(path)
-        except Exception as exc:
-            self.report_error("Cannot open parameters", _describe(exc, path))
-            return False
-        shape_norm = getattr(self.doc.shape, "normalization", None)
-        # The official format has no frame: it takes the shape's, now or once one is opened.
-        no_frame = path.suffix.lower() == ".txt"
-        if shape_norm is not None and no_frame:
-            abstraction.normalization = copy.deepcopy(shape_norm)
-        if self.doc.shape_path is not None and abstraction.source is None:
-            abstraction.source = {"path": str(self.doc.shape_path)}
-        self.doc.set_abstraction(abstraction, path,
-                                 frame_known=not no_frame or shape_norm is not None)
-        self.stack.clear()
-        self._add_recent(path)
-        self.show_status(f"Opened {len(abstraction)} primitives from {path.name}")
-        if self.doc.shape is None:
-            self._open_source_shape(path, abstraction.source)
-        if self.doc.shape is None:
-            self.scene.reset_camera()
-        return True
-
-    def _open_source_shape(self, params_path: Path, source: dict | None) -> None:
-        """Open the shape a parameter file was made from, when it can be found."""
-        if not source or not source.get("path"):
-            return
-        candidate = Path(str(source["path"]))
-        if not candidate.is_absolute():
-            candidate = params_path.parent / candidate
-        if candidate.is_file():
-            self.open_shape(candidate, ask=False)
-
-    def maybe_save(self) -> bool:
-        """Before discarding the document: True to go on, False when the user cancels."""
-        if not self.doc.dirty:
-            return True
-        answer = self.ask_save_changes()
-        if answer == "save":
-            return self.save()
-        return answer == "discard"
-
-    def save(self) -> bool:
-        path = self.doc.path
-        if path is None or path.suffix.lower() != ".json":
-            return self.save_as()
-        return self.save_to(path)
-
-    def save_as(self) -> bool:
-        start = self.doc.path or self.doc.shape_path
-        suggestion = str(start.with_suffix(".json")) if start is not None else "primitives.json"
-        name, _ = QFileDialog.getSaveFileName(self, "Save primitives", suggestion,
-                                              "SweepEdit parameters (*.json)")
-        if not name:
-            return False
-        if Path(name).suffix.lower() != ".json":
-            name += ".json"
-        return self.save_to(name)
+        return self.files.open_params(path, ask)
 
     def save_to(self, path: str | Path) -> bool:
-        """Write the primitives to `path` (.json, or .txt for the official format)."""
-        path = Path(path)
-        try:
-            from sweepedit.io.params import write_abstraction
-
-            write_abstraction(self.doc.abstraction, path)
-        except Exception as exc:
-            self.report_error("Cannot save", save_failure_text(exc, path))
-            return False
-        if path.suffix.lower() == ".json":
-            self.doc.set_path(path)
-            self.stack.set_clean()
-            self.autosave.remove()  # nothing unsaved is left to recover
-        self._add_recent(path)
-        self.show_status(f"Saved {path}")
-        return True
-
-    def export_txt_dialog(self) -> bool:
-        start = self.doc.path or self.doc.shape_path
-        suggestion = str(start.with_suffix(".txt")) if start else "primitive_parameters.txt"
-        name, _ = QFileDialog.getSaveFileName(self, "Export official SweepNet parameters",
-                                              suggestion, "SweepNet parameters (*.txt)")
-        if not name:
-            return False
-        if Path(name).suffix.lower() != ".txt":
-            name += ".txt"
-        return self.save_to(name)
-
-    def export_mesh_dialog(self, per_primitive: bool) -> bool:
-        start = self.doc.path or self.doc.shape_path
-        stem = start.stem if start is not None else "primitives"
-        name, chosen = QFileDialog.getSaveFileName(
-            self, "Export mesh", f"{stem}_{'parts' if per_primitive else 'union'}.obj",
-            ";;".join(MESH_EXPORT_TYPES))
-        if not name:
-            return False
-        if Path(name).suffix.lower().lstrip(".") not in MESH_EXPORT_TYPES.values():
-            name += "." + MESH_EXPORT_TYPES.get(chosen, "obj")
-        return self.export_mesh(name, per_primitive)
+        return self.files.save_to(path)
 
     def export_mesh(self, path: str | Path, per_primitive: bool = False) -> bool:
-        """Export the visible primitives in the shape's original frame: their union as one
-        watertight mesh, or one file per primitive (STEM_00.EXT, ...)."""
-        path = Path(path)
-        try:
-            from sweepedit.io.mesh_export import export_abstraction
-
-            visible = self.doc.abstraction.copy()
-            visible.primitives = visible.visible()
-            written = export_abstraction(visible, path, per_primitive=per_primitive,
-                                         original_frame=True)
-        except Exception as exc:
-            self.report_error("Cannot export mesh", save_failure_text(exc, path))
-            return False
-        self.show_status(f"Exported {len(written)} file(s): {', '.join(p.name for p in written)}")
-        return True
-
-    def export_step_dialog(self, union: bool) -> bool:
-        start = self.doc.path or self.doc.shape_path
-        stem = start.stem if start is not None else "primitives"
-        name, _ = QFileDialog.getSaveFileName(self, "Export STEP", f"{stem}.step",
-                                              "STEP (*.step *.stp)")
-        if not name:
-            return False
-        if Path(name).suffix.lower() not in (".step", ".stp"):
-            name += ".step"
-        return self.export_step(name, union)
+        return self.files.export_mesh(path, per_primitive)
 
     def export_step(self, path: str | Path, union: bool = False) -> bool:
-        """Start writing the visible primitives (in the shape's original frame) as STEP
-        solids in a worker thread, behind a progress dialog with Cancel; False if an
-        export is already running."""
-        from sweepedit.app.step_job import start_step_export
+        return self.files.export_step(path, union)
 
-        if getattr(self, "_step_job", None) is not None and self._step_job.isRunning():
-            self.show_status("A STEP export is already running")
-            return False
-        path = Path(path)
+    def recent_files(self) -> list[str]:
+        return self.files.recent_files()
 
-        def done(report: object) -> None:
-            self.show_status(f"Exported {report.solids} solid(s) to {path.name} "
-                             f"({report.size / 1024:.0f} kB, {report.seconds:.1f} s)")
+    def offer_recovery(self, answer: bool | None = None) -> bool:
+        return self.files.offer_recovery(answer)
 
-        def failed(message: str) -> None:
-            if message:
-                self.report_error("Cannot export STEP", message)
-            else:
-                self.show_status("STEP export cancelled; nothing was written")
-
-        self._step_job = start_step_export(self, self.doc.abstraction, path, union,
-                                           done, failed)
-        return True
-
+    # -- screenshots ----------------------------------------------------------------------
     def screenshot_dialog(self) -> bool:
         start = self.doc.path or self.doc.shape_path
         suggestion = str(start.with_suffix(".png")) if start else "sweepedit.png"
@@ -758,49 +520,6 @@ class MainWindow(QMainWindow):
             return False
         self.show_status(f"Saved {path}")
         return True
-
-    def open_shape_dialog(self) -> None:
-        patterns = " ".join(f"*{e}" for e in SHAPE_EXTENSIONS)
-        name, _ = QFileDialog.getOpenFileName(self, "Open shape", self._last_dir(),
-                                              f"Shapes ({patterns});;All files (*)")
-        if name:
-            self.open_shape(name)
-
-    def open_params_dialog(self) -> None:
-        name, _ = QFileDialog.getOpenFileName(
-            self, "Open parameters", self._last_dir(),
-            "Parameters (*.json *.txt);;SweepEdit (*.json);;SweepNet (*.txt);;All files (*)")
-        if name:
-            self.open_params(name)
-
-    def _last_dir(self) -> str:
-        recent = self.recent_files()
-        return str(Path(recent[0]).parent) if recent else ""
-
-    def recent_files(self) -> list[str]:
-        value = self.settings.value("recent_files", [])
-        if isinstance(value, str):
-            value = [value]
-        return [str(v) for v in (value or [])]
-
-    def _add_recent(self, path: Path) -> None:
-        p = str(Path(path).resolve())
-        recent = [r for r in self.recent_files() if r != p]
-        self.settings.setValue("recent_files", [p, *recent][:MAX_RECENT])
-
-    def _fill_recent_menu(self) -> None:
-        self.recent_menu.clear()
-        recent = self.recent_files()
-        if not recent:
-            self.recent_menu.addAction("(none)").setEnabled(False)
-            return
-        for p in recent:
-            a = self.recent_menu.addAction(p)
-            a.setEnabled(not self.fitting)
-            a.triggered.connect(lambda _c=False, p=p: self.open_path(p))
-        self.recent_menu.addSeparator()
-        self.recent_menu.addAction("Clear list").triggered.connect(
-            lambda: self.settings.setValue("recent_files", []))
 
     # -- drag and drop --------------------------------------------------------------------
     def dragEnterEvent(self, event: QDragEnterEvent) -> None:  # noqa: N802 (Qt API)
@@ -1041,14 +760,11 @@ class MainWindow(QMainWindow):
 
     # -- closing --------------------------------------------------------------------------
     def closeEvent(self, event: QCloseEvent) -> None:  # noqa: N802 (Qt API)
-        if not self.maybe_save():
+        if not self.files.maybe_save():
             event.ignore()
             return
         self.fit_control.shutdown()
-        step_job = getattr(self, "_step_job", None)
-        if step_job is not None:  # cancelled between steps; it writes nothing then
-            step_job.cancel()
-            step_job.wait()
+        self.files.shutdown()
         self.metrics.shutdown()
         self.heatmap.close()
         self.scene.close()
@@ -1058,95 +774,3 @@ class MainWindow(QMainWindow):
         self.autosave.shutdown()  # a clean exit leaves no recovery file
         self.plotter.close()
         event.accept()
-
-    # -- recovery -------------------------------------------------------------------------
-    def offer_recovery(self, answer: bool | None = None) -> bool:
-        """Offer the unsaved edits of editors that are gone, newest first (`answer`: True
-        or False answers every offer without asking, for `sweepedit gui --recover`).
-        True when one was recovered; declined ones stay until this session autosaves."""
-        for recovery in self.autosave.orphans():
-            take = self.ask_recover(recovery) if answer is None else answer
-            if take and self.recover(recovery):
-                return True
-            self.autosave.declined(recovery)
-        return False
-
-    def recover(self, recovery: Recovery) -> bool:
-        """Replace the document by exactly the autosaved one: its shape is opened again,
-        its parameter file becomes the document's path, and the autosaved primitives are
-        one undoable step on top of that file (so Ctrl+Z shows what was last saved)."""
-        if self.fitting:
-            return False
-        self._clear_document()
-        self.doc.set_shape(None, None)
-        shape_path = recovery.shape_path
-        if shape_path is not None and shape_path.is_file():
-            self.open_shape(shape_path, ask=False)
-        elif shape_path is not None:
-            self.show_status(f"The shape {shape_path} is gone; recovered the primitives "
-                             "without it", 15000)
-        doc_path = recovery.document_path
-        base = None
-        if doc_path is not None and doc_path.is_file():
-            try:
-                from sweepedit.io.params import read_abstraction
-
-                base = read_abstraction(doc_path)
-            except Exception:  # a damaged file: the recovered state is all there is
-                base = None
-        saved = recovery.abstraction
-        base_from_file = base is not None
-        if base is not None:
-            base.normalization = copy.deepcopy(saved.normalization)
-        else:
-            base = Abstraction(normalization=copy.deepcopy(saved.normalization))
-        base.source = copy.deepcopy(saved.source)
-        base.extras = copy.deepcopy(saved.extras)
-        self.doc.set_abstraction(base, doc_path, frame_known=recovery.frame_known)
-        self.stack.clear()
-        self.stack.push(ReplacePrimitives([p.copy() for p in saved.primitives],
-                                          copy.deepcopy(saved.fit),
-                                          text="Recover unsaved edits"))
-        if base_from_file is False:
-            self.stack.mark_modified()  # undo must not make an unsaved document look saved
-        self.autosave.taken(recovery)
-        self.scene.reset_camera()
-        self.show_status(f"Recovered the unsaved edits of {recovery.title}", 15000)
-        return True
-
-
-def save_failure_text(exc: BaseException, path: Path) -> str:
-    """Why a save failed and what to do, in the user's words (not "[Errno 2] ...")."""
-    what = f"Could not save {path.name}"
-    folder = path.parent
-    if not folder.exists():  # whoever found it out first (an OSError, or a check before)
-        return f"{what}: the folder {folder} does not exist. Choose another folder."
-    if isinstance(exc, OSError):
-        code = exc.errno
-        if code == errno.ENOENT or (code is None and not folder.is_dir()):
-            return f"{what}: the folder {folder} does not exist. Choose another folder."
-        if code in (errno.EACCES, errno.EPERM):
-            return (f"{what}: you may not write to the folder {folder}. "
-                    "Choose another folder.")
-        if code == errno.EROFS:
-            return f"{what}: {folder} is on a read-only disk. Choose another folder."
-        if code == errno.ENOSPC:
-            return f"{what}: the disk is full. Free some space or choose another disk."
-        if code == errno.EISDIR:
-            return f"{what}: {path} is a folder. Choose another name."
-        if code == errno.ENOTDIR:
-            return f"{what}: part of {folder} is a file, not a folder. Choose another folder."
-        return f"{what}: {exc.strerror or exc}. Choose another folder or name."
-    if isinstance(exc, SweepeditError):  # the format cannot hold it; its message says why
-        return f"{what}: {str(exc).removeprefix(f'{path}: ')}"
-    return f"{what}: {exc} ({type(exc).__name__})"
-
-
-def _describe(exc: BaseException, path: Path) -> str:
-    """A message naming the file and the problem (FileFormatError already names the file)."""
-    message = str(exc) or type(exc).__name__
-    if str(path) not in message and path.name not in message:
-        message = f"{path}: {message}"
-    if not isinstance(exc, SweepeditError | OSError | ValueError):
-        message += f" ({type(exc).__name__})"
-    return message

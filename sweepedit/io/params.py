@@ -271,6 +271,24 @@ def write_abstraction(abstraction: Abstraction, path: PathLike) -> None:
     atomic_write_text(path, dumps_abstraction(abstraction))
 
 
+def is_parameter_file(path: PathLike) -> bool:
+    """Parameters (.json, official .txt) rather than a shape. A .txt may also be a point
+    cloud: official rows hold 14+ numbers, point rows 3 (or 6 with normals)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".txt":
+        try:
+            with path.open("r", encoding="utf-8", errors="replace") as f:
+                for line in f:
+                    tokens = line.replace(",", " ").split()
+                    if tokens and not line.lstrip().startswith("#"):
+                        return len(tokens) > 6
+        except OSError:
+            return True  # let the parameter reader report it
+        return True
+    return suffix == ".json"
+
+
 def _kind(path: PathLike) -> Literal["json", "txt"]:
     suffix = Path(path).suffix.lower()
     if suffix == ".json":

@@ -651,7 +651,7 @@ def test_closing_during_a_fit_stops_it_cleanly(qtbot, window, small_files, monke
     assert not window.isVisible() and thread.isFinished()
     qtbot.wait(100)  # queued results of the stopped fit must not touch the closed view
     assert window.errors == []
-    window._fill_recent_menu()
+    window.files.fill_recent_menu(window.recent_menu)
     assert window.recent_menu.actions()[0].text().endswith("box.obj")
 
 
@@ -761,7 +761,7 @@ def test_worker_thread_signals_reach_the_gui_thread(qtbot) -> None:
 
 
 def test_txt_files_are_told_apart(tmp_path: Path) -> None:
-    from sweepedit.app.window import is_parameter_file
+    from sweepedit.io.params import is_parameter_file
 
     cloud = tmp_path / "cloud.txt"
     cloud.write_text("# x y z\n0.1 0.2 0.3\n0.2 0.3 0.4\n")
