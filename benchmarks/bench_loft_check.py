@@ -1,5 +1,5 @@
 """Our verdict on whether a loft through slices crosses itself (geometry/loft.py,
-loft_verdict) against OpenCascade's check of its solid (io/step_export.py,
+loft_verdict) against OpenCascade's check of its solid (io/step/checks.py,
 crosses_itself), on every loft that STEP export judges while it builds the folding
 primitives of the files given.
 
@@ -26,8 +26,11 @@ from pathlib import Path
 from typing import Any
 
 from sweepedit.geometry.model import folds_onto_itself
-from sweepedit.io import step_export
 from sweepedit.io.params import read_abstraction
+from sweepedit.io.step import StepExportError, primitive_solid
+from sweepedit.io.step import solids as step_solids
+from sweepedit.io.step.checks import is_crossing, self_interference
+from sweepedit.io.step.writer import _as_written
 
 
 def main() -> None:
@@ -42,20 +45,20 @@ def main() -> None:
 
     rows: list[dict[str, Any]] = []
     current: dict[str, Any] = {}
-    ours = step_export.loft_verdict
+    ours = step_solids.loft_verdict
 
     def both_checks(loft: Any, planes: Any) -> Any:
         start = time.perf_counter()
         verdict = ours(loft, planes)
         ours_s = time.perf_counter() - start
         try:  # the solid as STEP export would check it
-            solid = step_export._as_written(
-                step_export._sewn_solid(current["primitive"], loft, None, "loft"), "loft")
+            solid = _as_written(
+                step_solids._sewn_solid(current["primitive"], loft, None, "loft"), "loft")
         except Exception:  # a loft OpenCascade cannot make a solid of
             return verdict
         start = time.perf_counter()
-        found = step_export.self_interference(solid)  # crosses_itself, in two
-        crosses = any(step_export.is_crossing(result) for result in found)
+        found = self_interference(solid)  # crosses_itself, in two
+        crosses = any(is_crossing(result) for result in found)
         rows.append({"primitive": current["name"], "occ_crosses": crosses,
                      "occ_alarm": bool(found),
                      "ours": verdict.value, "ours_s": ours_s,
@@ -63,15 +66,15 @@ def main() -> None:
                      "planes": type(planes).__name__})
         return verdict
 
-    step_export.loft_verdict = both_checks
+    step_solids.loft_verdict = both_checks  # where _sliced_solids looks it up
     for path in files:
         for index, primitive in enumerate(read_abstraction(path).visible()):
             if not folds_onto_itself(primitive):
                 continue
             current["name"] = f"{path.name} #{index}"
             current["primitive"] = primitive
-            with contextlib.suppress(step_export.StepExportError):
-                step_export.primitive_solid(primitive, index)
+            with contextlib.suppress(StepExportError):
+                primitive_solid(primitive, index)
     counts = Counter((r["occ_crosses"], r["ours"]) for r in rows)
     summary = {
         "lofts": len(rows),

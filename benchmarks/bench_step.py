@@ -9,7 +9,7 @@ the union re-read from its file against the exact inside test.
 1. Random primitives that do not fold (d in [0.3, 5], curved axes of 3 to 6 control
    points, random scalings; seeded): each written to its own STEP file, read back with
    OpenCascade's reader; valid (OpenCascade's checker, and its self-interference check
-   for boolean operations as the export judges it, step_export.is_crossing; the raw
+   for boolean operations as the export judges it, io/step/checks.py's is_crossing; the raw
    check's alarms that it dismisses are counted apart), volume against the closed form,
    seconds, bytes.
 2. Every primitive of the official parameter files (--params, the .txt files) and of the
@@ -39,13 +39,8 @@ from sweepedit.geometry.model import Abstraction, SweepPrimitive, folds_onto_its
 from sweepedit.geometry.volumes import closed_form_volume, monte_carlo_volume
 from sweepedit.io.occupancy import winding_numbers
 from sweepedit.io.params import read_abstraction
-from sweepedit.io.step_export import (
-    export_step,
-    is_crossing,
-    read_step,
-    self_interference,
-    solid_volume,
-)
+from sweepedit.io.step import export_step, read_step
+from sweepedit.io.step.checks import is_crossing, self_interference, solid_volume
 from sweepedit.io.step_workers import start_helper
 
 DEFAULT_PARAMS = Path(__file__).resolve().parents[2] / "shared" / "sweepnet_params"

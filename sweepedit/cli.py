@@ -43,7 +43,7 @@ DEFAULT_SHAPES = BENCHMARK_DIR
 def _cmd_export(args: argparse.Namespace) -> int:
     from sweepedit.io.mesh_export import export_abstraction
     from sweepedit.io.params import read_abstraction
-    from sweepedit.io.step_export import is_step_path
+    from sweepedit.io.step import is_step_path
 
     abstraction = read_abstraction(args.params)
     if is_step_path(args.output):
@@ -64,7 +64,7 @@ def _export_step(abstraction: Abstraction, args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from sweepedit.io.step_export import export_step
+    from sweepedit.io.step import export_step
 
     if args.per_primitive:
         raise SweepeditError("a STEP file holds one solid per primitive already; "

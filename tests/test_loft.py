@@ -132,7 +132,8 @@ def test_star_shaped_polygons_and_others() -> None:
 
 def test_our_verdict_agrees_with_opencascades_on_lofts_that_do_and_do_not_cross() -> None:
     pytest.importorskip("OCP", reason="the optional 'cad' extra (OpenCascade) is not installed")
-    from sweepedit.io.step_export import _sewn_solid, crosses_itself
+    from sweepedit.io.step.checks import crosses_itself
+    from sweepedit.io.step.solids import _sewn_solid
 
     anything = SweepPrimitive([[0.0, 0.0, 0.0], [0.0, 0.0, 0.5], [0.0, 0.0, 1.0]],
                               a=0.3, b=0.3, degree=2.0)

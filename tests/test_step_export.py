@@ -40,14 +40,9 @@ from sweepedit.geometry.volumes import (
     union_bounds,
 )
 from sweepedit.io.params import write_abstraction
-from sweepedit.io.step_export import (
-    CAD_MISSING,
-    ExportCancelledError,
-    StepExportError,
-    export_step,
-    read_step,
-    solid_volume,
-)
+from sweepedit.io.step import ExportCancelledError, StepExportError, export_step, read_step
+from sweepedit.io.step.checks import solid_volume
+from sweepedit.io.step.occ import CAD_MISSING
 
 DATA = Path(__file__).parent / "data"
 needs_occ = pytest.mark.skipif(importlib.util.find_spec("OCP") is None,
@@ -146,14 +141,15 @@ def _decimals(path: Path) -> list[int]:
 
 @needs_occ
 def test_reals_are_written_with_8_decimals_at_the_same_volumes(tmp_path: Path) -> None:
-    from sweepedit.io import step_export
+    from sweepedit.io.step import solids as step_solids
+    from sweepedit.io.step import writer as step_writer
 
     prims = _curved()
-    parts = [(step_export.primitive_solid(p, i, None), p.name, p.color)
+    parts = [(step_solids.primitive_solid(p, i, None), p.name, p.color)
              for i, p in enumerate(prims)]
     short, full = tmp_path / "short.step", tmp_path / "full.step"
-    step_export._write_step(parts, short, short, decimals=8)
-    step_export._write_step(parts, full, full, decimals=None)  # OpenCascade's 13 digits
+    step_writer._write_step(parts, short, short, decimals=8)
+    step_writer._write_step(parts, full, full, decimals=None)  # OpenCascade's 13 digits
     assert max(_decimals(short)) == 8 and max(_decimals(full)) == 12
     assert short.stat().st_size < 0.9 * full.stat().st_size
     for a, b, prim in zip(_check(short), _check(full), prims, strict=True):
@@ -168,11 +164,11 @@ def test_reals_are_written_with_8_decimals_at_the_same_volumes(tmp_path: Path) -
 @needs_occ
 def test_a_file_that_does_not_read_back_short_is_written_with_all_digits(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from sweepedit.io import step_export
+    from sweepedit.io.step import writer as step_writer
 
     # One decimal moves the points by up to 0.05: the read-back volume is wrong, and
     # the file is written again as OpenCascade writes it.
-    monkeypatch.setattr(step_export, "STEP_DECIMALS", 1)
+    monkeypatch.setattr(step_writer, "STEP_DECIMALS", 1)
     prim = _curved()[2]
     out = tmp_path / "box.step"
     export_step(Abstraction([prim]), out)
@@ -210,16 +206,16 @@ def test_a_union_that_fails_its_check_is_fused_again_one_solid_at_a_time(
     # fuse of more than two (all at once, and fusing back what it left out) is made to
     # drop all but the first solid, and the export must see that and fuse them again one
     # at a time.
-    from sweepedit.io import step_export
+    from sweepedit.io.step import union as step_union
 
-    real = step_export.fuse_solids
+    real = step_union.fuse_solids
     calls: list[int] = []
 
     def lossy_first(solids):
         calls.append(len(solids))
         return solids[0] if len(solids) > 2 else real(solids)
 
-    monkeypatch.setattr(step_export, "fuse_solids", lossy_first)
+    monkeypatch.setattr(step_union, "fuse_solids", lossy_first)
     prims = [
         SweepPrimitive([[-0.3, 0, 0], [0, 0.15, 0], [0.3, 0, 0]], a=0.08, b=0.05, degree=2.0,
                        scaling=(0.1, -0.2), name="arch"),
@@ -254,7 +250,8 @@ def test_the_solids_a_fuse_left_out_are_found_by_points_inside_them_alone() -> N
     # A fuse of two of three primitives' solids left the third out (wherever it lies:
     # crossing the others or apart); a fuse of all left nothing out; one solid alone
     # left both others out.
-    from sweepedit.io.step_export import fuse_solids, left_out, primitive_solid
+    from sweepedit.io.step.solids import primitive_solid
+    from sweepedit.io.step.union import fuse_solids, left_out
 
     prims = _rod_cross_and_apart()
     solids = [primitive_solid(p) for p in prims]
@@ -278,9 +275,10 @@ def test_a_solid_the_fuse_of_all_left_out_is_fused_back(
     # (9.1 % short, in any order); here the fuse of all three leaves the crossing rod
     # out, and the export must fuse it back in one more fuse (not one at a time) and
     # write the union at its true volume.
-    from sweepedit.io import step_export
+    from sweepedit.io.step import solids as step_solids
+    from sweepedit.io.step import union as step_union
 
-    real = step_export.fuse_solids
+    real = step_union.fuse_solids
     calls: list[int] = []
     prims = _rod_cross_and_apart()
 
@@ -290,8 +288,8 @@ def test_a_solid_the_fuse_of_all_left_out_is_fused_back(
             return real([s for s in solids if abs(solid_volume(s) - cross) > 1e-9 * cross])
         return real(solids, fuzzy)
 
-    cross = solid_volume(step_export.primitive_solid(prims[1]))
-    monkeypatch.setattr(step_export, "fuse_solids", drops_the_cross)
+    cross = solid_volume(step_solids.primitive_solid(prims[1]))
+    monkeypatch.setattr(step_union, "fuse_solids", drops_the_cross)
     out = tmp_path / "union.step"
     stages: list[str] = []
     export_step(Abstraction(prims), out, union=True, progress=lambda f, text: stages.append(text))
@@ -344,9 +342,9 @@ def test_a_union_whose_fuse_drops_seven_tenths_of_a_percent_is_not_written(
     from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
     from OCP.gp import gp_Pnt, gp_Trsf
 
-    from sweepedit.io import step_export
+    from sweepedit.io.step import union as step_union
 
-    real = step_export.fuse_solids
+    real = step_union.fuse_solids
 
     def short(solids, fuzzy=0.0):
         move = gp_Trsf()
@@ -359,7 +357,7 @@ def test_a_union_whose_fuse_drops_seven_tenths_of_a_percent_is_not_written(
                             b=0.07, degree=1.5)]
     exact = export_step(Abstraction(prims), tmp_path / "exact.step", union=True)
     assert exact.solids == 1
-    monkeypatch.setattr(step_export, "fuse_solids", short)
+    monkeypatch.setattr(step_union, "fuse_solids", short)
     out = tmp_path / "short.step"
     with pytest.raises(StepExportError, match="the union"):
         export_step(Abstraction(prims), out, union=True)
@@ -418,7 +416,8 @@ def test_lofts_of_crossing_sweeps_we_vouch_for_pass_opencascades_check(
         slicing_families,
         surface_samples,
     )
-    from sweepedit.io import step_export
+    from sweepedit.io.step import checks as step_checks
+    from sweepedit.io.step import solids as step_solids
 
     surface = surface_samples(prim)
     stubs = end_stubs(prim, surface)
@@ -432,8 +431,8 @@ def test_lofts_of_crossing_sweeps_we_vouch_for_pass_opencascades_check(
             loft = ring_loft(sliced.rings, sliced.u, sliced.angles)
             verdict = loft_verdict(loft, planes)
             if verdict is not LoftVerdict.UNKNOWN:
-                solid = step_export._sewn_solid(prim, loft, None, "p")
-                assert step_export.crosses_itself(solid) == (verdict is LoftVerdict.CROSSES)
+                solid = step_solids._sewn_solid(prim, loft, None, "p")
+                assert step_checks.crosses_itself(solid) == (verdict is LoftVerdict.CROSSES)
                 vouched += verdict is LoftVerdict.EMBEDDED
     assert vouched >= 1
 
@@ -521,15 +520,16 @@ def _side_poles(shape) -> list[np.ndarray]:
 @needs_occ
 def test_a_folding_solid_that_opencascade_checks_is_checked_as_it_reads_back(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from sweepedit.io import step_export
+    from sweepedit.io.step import checks as step_checks
+    from sweepedit.io.step import solids as step_solids
 
     # Where the loft's own test cannot tell, the solid is checked for crossing itself
     # as read back from its STEP text (a file does not check it again), so written to a
     # file it must read back with the very same side surfaces, to the last bit.
-    monkeypatch.setattr(step_export, "loft_verdict", lambda *a, **k: LoftVerdict.UNKNOWN)
+    monkeypatch.setattr(step_solids, "loft_verdict", lambda *a, **k: LoftVerdict.UNKNOWN)
     prim = _knuckle()
-    solid = step_export.primitive_solid(prim)
-    assert not step_export.crosses_itself(solid)
+    solid = step_solids.primitive_solid(prim)
+    assert not step_checks.crosses_itself(solid)
     out = tmp_path / "knuckle.step"
     export_step(Abstraction([prim, _curved()[0]]), out)
     written = _side_poles(_check(out)[0].shape)
@@ -541,22 +541,24 @@ def test_a_folding_solid_that_opencascade_checks_is_checked_as_it_reads_back(
 
 @needs_occ
 def test_a_folding_solid_its_loft_test_vouches_for_is_written_as_built(tmp_path: Path) -> None:
-    from sweepedit.io import step_export
+    from sweepedit.io.step import checks as step_checks
+    from sweepedit.io.step import solids as step_solids
+    from sweepedit.io.step import writer as step_writer
 
     # The knuckle's loft is shown not to cross itself by its samples: its solid is kept
     # as built (no write and read back) and the file, rounded to STEP_DECIMALS, reads
     # back valid, not crossing itself, with the built solid's volume.
     prim = _knuckle()
-    solid = step_export.primitive_solid(prim)
+    solid = step_solids.primitive_solid(prim)
     out = tmp_path / "knuckle.step"
     export_step(Abstraction([prim]), out)
     read = _check(out)[0].shape
-    assert not step_export.crosses_itself(read)
-    assert step_export.solid_volume(read) == pytest.approx(step_export.solid_volume(solid),
+    assert not step_checks.crosses_itself(read)
+    assert step_checks.solid_volume(read) == pytest.approx(step_checks.solid_volume(solid),
                                                            rel=1e-6)
     written, built = _side_poles(read), _side_poles(solid)
     assert len(built) == len(written) == 4
-    unit = 10.0 ** -step_export.STEP_DECIMALS
+    unit = 10.0 ** -step_writer.STEP_DECIMALS
     for a, b in zip(built, written, strict=True):
         assert np.abs(a - b).max() <= unit  # rounded, so not the same solid object
         assert not np.array_equal(a, b)
@@ -565,7 +567,9 @@ def test_a_folding_solid_its_loft_test_vouches_for_is_written_as_built(tmp_path:
 @needs_occ
 def test_a_solid_that_crosses_itself_once_rounded_is_written_with_all_digits(
         tmp_path: Path) -> None:
-    from sweepedit.io import step_export
+    from sweepedit.io.step import checks as step_checks
+    from sweepedit.io.step import solids as step_solids
+    from sweepedit.io.step import writer as step_writer
 
     # The benchmark's 4th random primitive, with very sharp cusps (d = 0.34): its solid
     # passes OpenCascade's self-interference check in memory, but written with 8
@@ -578,28 +582,28 @@ def test_a_solid_that_crosses_itself_once_rounded_is_written_with_all_digits(
                           degree=0.34413473721955695,
                           scaling=(-0.20724702718046484, -0.09925523223843569), name="cusps")
     assert not folds_onto_itself(prim)
-    solid = step_export.primitive_solid(prim)
-    assert not step_export.crosses_itself(solid)
+    solid = step_solids.primitive_solid(prim)
+    assert not step_checks.crosses_itself(solid)
     rounded = tmp_path / "rounded.step"
-    step_export._write_step([(solid, "cusps", "#808080")], rounded, rounded, decimals=8)
-    assert step_export.crosses_itself(read_step(rounded)[0].shape)
+    step_writer._write_step([(solid, "cusps", "#808080")], rounded, rounded, decimals=8)
+    assert step_checks.crosses_itself(read_step(rounded)[0].shape)
     # The file written is checked as read back, and so comes with all digits.
     out = tmp_path / "cusps.step"
     export_step(Abstraction([prim]), out)
     solids = _check(out)
-    assert not step_export.crosses_itself(solids[0].shape)
+    assert not step_checks.crosses_itself(solids[0].shape)
     assert solid_volume(solids[0].shape) == pytest.approx(closed_form_volume(prim), rel=1e-3)
 
 
 @needs_occ
 def test_a_solid_that_crosses_itself_however_written_is_refused_by_name(
         tmp_path: Path, monkeypatch) -> None:
-    from sweepedit.io import step_export
+    from sweepedit.io.step import writer as step_writer
 
     # A primitive that does not fold is checked for crossing itself only as read back
     # from its file (at 8 decimals, then with all digits): made to fail there, it is an
     # error naming it, and nothing is written.
-    monkeypatch.setattr(step_export, "crosses_itself", lambda shape: True)
+    monkeypatch.setattr(step_writer, "crosses_itself", lambda shape: True)
     out = tmp_path / "parts.step"
     with pytest.raises(StepExportError, match=r"diamond read back .* crosses itself"):
         export_step(Abstraction(_curved()[1:2]), out)
@@ -609,7 +613,7 @@ def test_a_solid_that_crosses_itself_however_written_is_refused_by_name(
 def _extruded_cubic(points: Callable[[np.ndarray], np.ndarray], lo: float, hi: float):
     """A face on the cubic plane curve points(t), t in [lo, hi] ((n,) -> (n, 2)),
     extruded along z by 1: its Bezier poles solved from 4 points of the curve."""
-    from sweepedit.io import step_export
+    from sweepedit.io.step import solids as step_solids
 
     s = np.linspace(0.0, 1.0, 4)
     bernstein = np.array([[math.comb(3, k) * x**k * (1.0 - x) ** (3 - k) for k in range(4)]
@@ -617,14 +621,14 @@ def _extruded_cubic(points: Callable[[np.ndarray], np.ndarray], lo: float, hi: f
     curve = np.linalg.solve(bernstein, points(lo + (hi - lo) * s))  # (4, 2)
     poles = np.array([[[x, y, z] for z in np.linspace(0.0, 1.0, 4)] for x, y in curve])
     knots = np.array([0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0])
-    return step_export._bspline_face(knots, knots, poles)
+    return step_solids._bspline_face(knots, knots, poles)
 
 
 @needs_occ
 def test_a_face_that_crosses_itself_is_told_from_one_that_does_not() -> None:
     from OCP.BRepAlgoAPI import BRepAlgoAPI_Check
 
-    from sweepedit.io import step_export
+    from sweepedit.io.step import checks as step_checks
 
     # The alpha curve x = t^2 - 1, y = t^3 - t passes through the origin at t = -1 and
     # t = 1: extruded over t in [-1.5, 1.5] its face crosses itself along the z axis,
@@ -639,10 +643,10 @@ def test_a_face_that_crosses_itself_is_told_from_one_that_does_not() -> None:
         check.SetData(face, False, True)
         check.Perform()
         assert check.IsValid() is not crosses
-        assert step_export.crosses_itself(face) is crosses
+        assert step_checks.crosses_itself(face) is crosses
         # the one result of the crossing face is that face meeting itself
         if crosses:
-            assert [step_export._face_alone(r) is not None for r in check.Result()] == [True]
+            assert [step_checks._face_alone(r) is not None for r in check.Result()] == [True]
 
 
 @needs_occ
@@ -650,7 +654,8 @@ def test_an_alarm_of_a_face_meeting_itself_at_one_point_of_it_is_dismissed(
         tmp_path: Path, monkeypatch) -> None:
     from OCP.BRepAlgoAPI import BRepAlgoAPI_Check
 
-    from sweepedit.io import step_export
+    from sweepedit.io.step import checks as step_checks
+    from sweepedit.io.step import solids as step_solids
 
     # camel.json's 4th primitive of a K = 8 fit (2026-12-06) folds. Its solid is a loft
     # through slices whose level curves and end rings are all star-shaped (our test,
@@ -667,13 +672,13 @@ def test_an_alarm_of_a_face_meeting_itself_at_one_point_of_it_is_dismissed(
                           scaling=(0.48021000623703003, 0.49999988079071045), name="hump")
     assert folds_onto_itself(prim)
     verdicts = []
-    ours = step_export.loft_verdict
+    ours = step_solids.loft_verdict
 
     def recorded(loft, planes):
         verdicts.append(ours(loft, planes))
         return verdicts[-1]
 
-    monkeypatch.setattr(step_export, "loft_verdict", recorded)
+    monkeypatch.setattr(step_solids, "loft_verdict", recorded)
     out = tmp_path / "hump.step"
     export_step(Abstraction([prim]), out)
     assert verdicts == [LoftVerdict.EMBEDDED]
@@ -688,8 +693,8 @@ def test_an_alarm_of_a_face_meeting_itself_at_one_point_of_it_is_dismissed(
         check.Perform()
         results = list(check.Result())
         assert bool(results) == alarm
-        assert all(step_export._face_alone(r) is not None for r in results)
-        assert not step_export.crosses_itself(solids[0].shape)
+        assert all(step_checks._face_alone(r) is not None for r in results)
+        assert not step_checks.crosses_itself(solids[0].shape)
         assert solid_volume(solids[0].shape) == pytest.approx(estimate, abs=0.01 * estimate
                                                               + 4 * error)
 
@@ -811,7 +816,7 @@ def test_lofts_through_either_family_of_slices_keep_a_bends_volume() -> None:
     # Both well within the 1 % a folding primitive's solid is held to.
     from sweepedit.geometry.loft import ring_loft
     from sweepedit.geometry.slices import ParallelPlanes, caps_pencil, slice_rings
-    from sweepedit.io.step_export import _sewn_solid
+    from sweepedit.io.step.solids import _sewn_solid
 
     bend = SweepPrimitive([[0.3, 0.0, 0.0], [0.3, 0.3, 0.0], [0.0, 0.3, 0.0]], a=0.05,
                           b=0.04, degree=2.5, name="bend")
@@ -859,7 +864,7 @@ def test_a_loft_through_slices_ends_in_flat_caps_in_the_caps_planes() -> None:
     # in its plane with the profile's area (within 1 %: the rim is the loft's section,
     # through 48 rays cut at 45 degrees; 0.4 % here), and the volume is the closed
     # form's within 3e-4 (without the stubs the rims come out rounded: 0.12 % short).
-    from sweepedit.io.step_export import _sliced_solids
+    from sweepedit.io.step.solids import _sliced_solids
 
     bend = SweepPrimitive([[0.3, 0.0, 0.0], [0.3, 0.3, 0.0], [0.0, 0.3, 0.0]], a=0.05,
                           b=0.04, degree=2.5, name="bend")
@@ -882,7 +887,8 @@ def test_a_folding_solid_keeps_a_flat_cap_where_the_first_slicing_cannot(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from OCP.BRepAlgoAPI import BRepAlgoAPI_Check
 
-    from sweepedit.io import step_export
+    from sweepedit.io.step import checks as step_checks
+    from sweepedit.io.step import solids as step_solids
 
     # camel.json's 1st primitive of a K = 8 fit: short and fat, folding towards t = 1,
     # so only its cap at t = 0 gets an end stub. The first family's lofts with the stub
@@ -902,8 +908,8 @@ def test_a_folding_solid_keeps_a_flat_cap_where_the_first_slicing_cannot(
                           scaling=(0.4999995231628418, -0.49999916553497314), name="hump")
     assert folds_onto_itself(prim)
     crossings: list[bool] = []
-    check = step_export.crosses_itself
-    monkeypatch.setattr(step_export, "crosses_itself",
+    check = step_checks.crosses_itself
+    monkeypatch.setattr(step_solids, "crosses_itself",
                         lambda shape: crossings.append(not crossings or check(shape))
                         or crossings[-1])
     out = tmp_path / "hump.step"
@@ -932,7 +938,8 @@ def test_a_unions_edge_curves_lose_poles_but_not_volume(tmp_path: Path) -> None:
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
-    from sweepedit.io.step_export import fuse_solids, primitive_solid, simplify_edge_curves
+    from sweepedit.io.step.solids import primitive_solid
+    from sweepedit.io.step.union import fuse_solids, simplify_edge_curves
 
     r, length = 0.1, 0.6
     rods = [SweepPrimitive([[-0.3, 0, 0], [0, 0, 0], [0.3, 0, 0]], a=r, b=r, degree=2.0),
@@ -956,10 +963,10 @@ def test_a_unions_edge_curves_lose_poles_but_not_volume(tmp_path: Path) -> None:
     assert solid_volume(simplified, 1e-8) == pytest.approx(volume, rel=1e-6)
     assert volume == pytest.approx(2 * math.pi * r * r * length - 16 * r**3 / 3, rel=1e-3)
     # The curves on the faces of the changed edges, projected anew, are in the file.
-    from sweepedit.io import step_export
+    from sweepedit.io.step import writer as step_writer
 
     out = tmp_path / "simplified.step"
-    step_export._write_step([(simplified, "union", "#808080")], out, out, decimals=8)
+    step_writer._write_step([(simplified, "union", "#808080")], out, out, decimals=8)
     assert solid_volume(_check(out)[0].shape, 1e-8) == pytest.approx(volume, rel=1e-6)
 
 
@@ -971,7 +978,7 @@ def test_a_union_whose_simplified_edges_fail_the_check_is_written_as_fused(
     from OCP.TopAbs import TopAbs_SOLID
     from OCP.TopExp import TopExp_Explorer
 
-    from sweepedit.io import step_export
+    from sweepedit.io.step import union as step_union
 
     def lossy(shape):
         return TopExp_Explorer(shape, TopAbs_SOLID).Current()  # the first solid only
@@ -981,7 +988,7 @@ def test_a_union_whose_simplified_edges_fail_the_check_is_written_as_fused(
         SweepPrimitive([[0.25, -0.3, 0.2], [0.3, 0.0, 0.2], [0.25, 0.3, 0.2]], a=0.05,
                        b=0.05, degree=2.0),
     ]
-    monkeypatch.setattr(step_export, "simplify_edge_curves", lossy)
+    monkeypatch.setattr(step_union, "simplify_edge_curves", lossy)
     out = tmp_path / "union.step"
     export_step(Abstraction(prims), out, union=True)
     estimate, error = _monte_carlo(prims, 400_000)
@@ -994,16 +1001,16 @@ def test_the_fuse_of_all_at_once_takes_the_solids_largest_first(
     # OpenCascade's fuse depends on the order of its solids (octopus.json's union came
     # out 59 % short in the primitives' order, right largest first): the smaller solid
     # listed first must reach the fuse second, and the union still be right.
-    from sweepedit.io import step_export
+    from sweepedit.io.step import union as step_union
 
-    real = step_export.fuse_solids
+    real = step_union.fuse_solids
     calls: list[list[float]] = []
 
     def spy(solids, fuzzy=0.0):
         calls.append([solid_volume(s) for s in solids])
         return real(solids, fuzzy)
 
-    monkeypatch.setattr(step_export, "fuse_solids", spy)
+    monkeypatch.setattr(step_union, "fuse_solids", spy)
     prims = _crossing_pair()[::-1]
     assert closed_form_volume(prims[0]) < closed_form_volume(prims[1])
     out = tmp_path / "union.step"
@@ -1019,9 +1026,9 @@ def test_a_union_that_no_plain_fuse_gets_right_is_fused_with_a_tolerance(
     # Both plain fuses (all at once, one at a time) are made to drop all but the first
     # solid, as OpenCascade's did on hand.txt; the fuzzy fuse that follows must be
     # checked and written, and its union read back at the true volume.
-    from sweepedit.io import step_export
+    from sweepedit.io.step import union as step_union
 
-    real = step_export.fuse_solids
+    real = step_union.fuse_solids
     fuzzy_values: list[float] = []
 
     def lossy_unless_fuzzy(solids, fuzzy=0.0):
@@ -1030,14 +1037,14 @@ def test_a_union_that_no_plain_fuse_gets_right_is_fused_with_a_tolerance(
             return real(solids, fuzzy)
         return solids[0]
 
-    monkeypatch.setattr(step_export, "fuse_solids", lossy_unless_fuzzy)
+    monkeypatch.setattr(step_union, "fuse_solids", lossy_unless_fuzzy)
     prims = _crossing_pair()
     out = tmp_path / "union.step"
     export_step(Abstraction(prims), out, union=True)
     # One fuzzy fuse, at the coarser share of the union's size (its box's diagonal):
     # a failing step tries that one first
     lo, hi = union_bounds(prims)
-    assert fuzzy_values == [pytest.approx(max(step_export.FUZZY_FUSE_SHARES)
+    assert fuzzy_values == [pytest.approx(max(step_union.FUZZY_FUSE_SHARES)
                                           * float(np.linalg.norm(hi - lo)))]
     estimate, error = _monte_carlo(prims, 400_000)
     assert solid_volume(_check(out)[0].shape) == pytest.approx(estimate, abs=4 * error)
@@ -1053,11 +1060,13 @@ def test_a_union_that_no_fuse_gets_right_is_fused_with_its_solids_nudged(
     from OCP.Bnd import Bnd_Box
     from OCP.BRepBndLib import BRepBndLib
 
-    from sweepedit.io import step_export
+    from sweepedit.io.step import export as step_export
+    from sweepedit.io.step import solids as step_solids
+    from sweepedit.io.step import union as step_union
 
-    real = step_export.fuse_solids
+    real = step_union.fuse_solids
     built: list = []
-    real_solids = step_export.primitive_solids
+    real_solids = step_solids.primitive_solids
 
     def remembered(*args, **kwargs):
         for solid in real_solids(*args, **kwargs):
@@ -1070,7 +1079,7 @@ def test_a_union_that_no_fuse_gets_right_is_fused_with_its_solids_nudged(
         return real(solids, fuzzy)
 
     monkeypatch.setattr(step_export, "primitive_solids", remembered)
-    monkeypatch.setattr(step_export, "fuse_solids", lossy_unless_moved)
+    monkeypatch.setattr(step_union, "fuse_solids", lossy_unless_moved)
     prims = _crossing_pair()
     out = tmp_path / "union.step"
     stages: list[str] = []
@@ -1088,7 +1097,7 @@ def test_a_union_that_no_fuse_gets_right_is_fused_with_its_solids_nudged(
 
     unmoved = real(built)
     lo, hi = union_bounds(prims)
-    distance = step_export.NUDGE_SHARE * float(np.linalg.norm(hi - lo))
+    distance = step_union.NUDGE_SHARE * float(np.linalg.norm(hi - lo))
     assert np.abs(box(union.shape) - box(unmoved)).max() <= distance + 1e-6
 
 
@@ -1102,9 +1111,9 @@ def test_a_union_that_reads_back_invalid_is_not_written(
     from OCP.BRepCheck import BRepCheck_Analyzer
     from OCP.ShapeFix import ShapeFix_ShapeTolerance
 
-    from sweepedit.io import step_export
+    from sweepedit.io.step import writer as step_writer
 
-    real = step_export.read_step
+    real = step_writer.read_step
     reads: list[int] = []
 
     def damaged(path):
@@ -1117,7 +1126,7 @@ def test_a_union_that_reads_back_invalid_is_not_written(
 
     prims = _crossing_pair()
     out = tmp_path / "union.step"
-    monkeypatch.setattr(step_export, "read_step", damaged)
+    monkeypatch.setattr(step_writer, "read_step", damaged)
     export_step(Abstraction(prims), out, union=True)
     assert len(reads) >= 2
     assert max(_decimals(out)) == 8
@@ -1133,26 +1142,27 @@ def test_a_union_over_its_size_budget_leaves_the_curves_on_faces_out(
     # it (a budget of 1 byte here), it has none and still reads back valid at the Monte
     # Carlo volume; and where such a file reads back wrong (its first solid read is
     # dropped here), the file with the curves is written after all.
-    from sweepedit.io import step_export
+    from sweepedit.io.step import union as step_union
+    from sweepedit.io.step import writer as step_writer
 
     prims = _crossing_pair()
     estimate, error = _monte_carlo(prims, 400_000)
     within, over, wrong = (tmp_path / f"{n}.step" for n in ("within", "over", "wrong"))
     export_step(Abstraction(prims), within, union=True)
-    monkeypatch.setattr(step_export, "STEP_BYTES_PER_PRIMITIVE", 1)
+    monkeypatch.setattr(step_union, "STEP_BYTES_PER_PRIMITIVE", 1)
     export_step(Abstraction(prims), over, union=True)
     assert "PCURVE" in within.read_text() and "PCURVE" not in over.read_text()
     assert over.stat().st_size < 0.8 * within.stat().st_size
     for path in (within, over):
         assert solid_volume(_check(path)[0].shape) == pytest.approx(estimate, abs=4 * error)
 
-    real = step_export.read_step
+    real = step_writer.read_step
 
     def without_curves_read_wrong(path):
         solids = real(path)
         return solids if "PCURVE" in Path(path).read_text() else []
 
-    monkeypatch.setattr(step_export, "read_step", without_curves_read_wrong)
+    monkeypatch.setattr(step_writer, "read_step", without_curves_read_wrong)
     export_step(Abstraction(prims), wrong, union=True)
     # the same data, but for the solid's name (the file's stem); no time stamp
     data = lambda path: path.read_text().split("DATA;", 1)[1].replace(path.stem, "u")  # noqa: E731
@@ -1166,9 +1176,11 @@ def test_a_union_that_no_fuse_gets_right_is_fused_with_a_folding_primitive_slice
     # is in it, as OpenCascade's did with hand.txt's 1st primitive against its 7th; the
     # hairpin sliced another way (the next solid of it that passes its checks) must then
     # be fused, checked and written at the true volume.
-    from sweepedit.io import step_export
+    from sweepedit.io.step import export as step_export
+    from sweepedit.io.step import solids as step_solids
+    from sweepedit.io.step import union as step_union
 
-    real_fuse, real_solids = step_export.fuse_solids, step_export.primitive_solids
+    real_fuse, real_solids = step_union.fuse_solids, step_solids.primitive_solids
     first: list = []
 
     def remembered(primitive, index=0, normalization=None):
@@ -1185,8 +1197,8 @@ def test_a_union_that_no_fuse_gets_right_is_fused_with_a_folding_primitive_slice
         return real_fuse(solids, fuzzy)
 
     monkeypatch.setattr(step_export, "primitive_solids", remembered)
-    monkeypatch.setattr(step_export, "fuse_solids", lossy_with_the_first)
-    monkeypatch.setattr(step_export, "nudged", lambda solids, distance, seed=0: list(solids))
+    monkeypatch.setattr(step_union, "fuse_solids", lossy_with_the_first)
+    monkeypatch.setattr(step_union, "nudged", lambda solids, distance, seed=0: list(solids))
     hairpin = next(p for p in CROSSING if p.name == "hairpin")
     rod = SweepPrimitive([[-0.2, 0.05, 0.0], [0.0, 0.05, 0.0], [0.2, 0.05, 0.0]], a=0.04,
                          b=0.04, degree=2.0, name="rod")
@@ -1215,7 +1227,7 @@ def test_a_crossing_primitive_s_next_solid_is_another_loft_within_its_volume() -
     # A union's fallback asks a folding primitive for more solids: primitive_solids goes
     # on where its first search stopped, so the next is another loft (a rebuild of the
     # first would have its volume to the bit), checked against the same truth.
-    from sweepedit.io.step_export import primitive_solids
+    from sweepedit.io.step.solids import primitive_solids
 
     hairpin = next(p for p in CROSSING if p.name == "hairpin")
     solids = list(islice(primitive_solids(hairpin), 2))

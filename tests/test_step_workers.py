@@ -14,15 +14,15 @@ from crossing import CROSSING
 from sweepedit.errors import SweepeditError
 from sweepedit.geometry.model import Abstraction, SweepPrimitive
 from sweepedit.io import step_workers
-from sweepedit.io.step_export import (
+from sweepedit.io.step import (
     ExportCancelledError,
     export_step,
     primitive_solid,
     primitive_solids,
     read_step,
-    sections_cross,
-    solid_volume,
 )
+from sweepedit.io.step.checks import solid_volume
+from sweepedit.io.step.solids import sections_cross
 from sweepedit.io.step_workers import build_all, solid_bytes, solid_from_bytes
 
 needs_occ = pytest.mark.skipif(importlib.util.find_spec("OCP") is None,

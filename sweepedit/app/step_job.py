@@ -40,7 +40,7 @@ class StepExportThread(QThread):
         self._cancel.set()
 
     def run(self) -> None:  # in the worker thread
-        from sweepedit.io.step_export import ExportCancelledError, export_step
+        from sweepedit.io.step import ExportCancelledError, export_step
         from sweepedit.io.step_workers import start_helper
 
         lower_thread_priority()

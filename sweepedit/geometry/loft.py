@@ -16,7 +16,7 @@ plane (a cap's plane need not be a slice's, and no level lies on it), need only 
 simple: one that crosses itself shows the loft does.
 loft_verdict tests all this on dense samples of the surface (LOFT_SAMPLES per knot span
 each way, LEVELS_PER_ROW heights per row of samples): a sliver finer than that would
-pass, and OpenCascade's own check of the solid (crosses_itself in io/step_export.py) is
+pass, and OpenCascade's own check of the solid (crosses_itself in io/step/checks.py) is
 asked for where neither is shown. On the 205 lofts STEP export judged for the folding
 primitives of the official files and the K = 8 fits in benchmarks/fits/k8, this test
 vouched for 113 of the 141 that OpenCascade passes and for none of the 64 it finds

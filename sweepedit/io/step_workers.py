@@ -297,9 +297,10 @@ def _serve(replies: BinaryIO, requests: BinaryIO) -> None:
     import numpy as np
 
     from sweepedit.geometry.inside import inside_union
-    from sweepedit.io import step_export
+    from sweepedit.io.step.occ import _occ
+    from sweepedit.io.step.solids import primitive_solids
 
-    step_export._occ()
+    _occ()
     # The compiled inside test loaded before the first solid is asked for.
     inside_union(np.zeros((1, 3)), [SweepPrimitive([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0]],
                                                    a=0.1, b=0.1, degree=2.0)])
@@ -326,7 +327,7 @@ def _serve(replies: BinaryIO, requests: BinaryIO) -> None:
         last[0] = 0.0
         begun = time.perf_counter()
         try:
-            solid = next(step_export.primitive_solids(primitive, index, normalization))
+            solid = next(primitive_solids(primitive, index, normalization))
             reply((token, k, solid_bytes(solid), time.perf_counter() - begun, None))
         except Exception as error:  # sent back and raised there
             reply((token, k, None, 0.0, _picklable(error)))

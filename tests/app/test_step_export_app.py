@@ -14,7 +14,7 @@ pytestmark = pytest.mark.skipif(importlib.util.find_spec("OCP") is None,
 
 def test_export_step_in_the_background_and_cancel(window, qtbot, small_files,
                                                   tmp_path: Path) -> None:
-    from sweepedit.io.step_export import read_step
+    from sweepedit.io.step import read_step
 
     assert window.open_path(small_files["json"])
     assert window.act_export_step.isEnabled()
