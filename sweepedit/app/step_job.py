@@ -17,7 +17,7 @@ _STEPS = 1000  # progress dialog resolution
 
 
 class StepExportThread(QThread):
-    """Writes a STEP file off the GUI thread (sweepedit.io.step_export.export_step).
+    """Writes a STEP file off the GUI thread (sweepedit.io.step.export_step).
 
     Signals: progress(fraction, text); done(StepReport); failed(message), with an empty
     message when the user cancelled (nothing is written then).

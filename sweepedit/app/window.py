@@ -57,6 +57,7 @@ from sweepedit.app.scene import SweepScene
 from sweepedit.app.scene_mouse import SceneMouse
 from sweepedit.app.worker import (
     MetricsRunner,
+    favour_gui_thread,
     preload_fit_api,
 )
 from sweepedit.errors import SweepeditError
@@ -103,6 +104,7 @@ class MainWindow(QMainWindow):
     def __init__(self, settings: QSettings | None = None, parent: QWidget | None = None,
                  preload_fit: bool = True, recovery_dir: Path | None = None) -> None:
         super().__init__(parent)
+        favour_gui_thread()
         self.preload_fit = preload_fit
         from sweepedit.app.view3d import make_view  # heavy import, only when a window is made
 

@@ -39,6 +39,13 @@ TORCH_LIBRARIES = ("libc10.so", "libtorch_cpu.so", "libtorch.so")
 # Not while importing torch: its long GIL-holding steps would then take longer, and the
 # GUI thread waits for the GIL (measured: one 135 ms stall).
 WORKER_NICENESS = 10
+# How long a thread may keep the GIL while another waits for it (Python's default: 5 ms).
+# The GUI thread gives the GIL up many times a frame (numpy on arrays of more than a few
+# hundred items, Qt's event processing, rendering), and beside a thread running Python
+# (torch's import, the fit's own Python) it waits a whole interval to get it back each
+# time: a preview of 8 primitives took 291 ms beside one such thread at 5 ms, 50 ms at
+# 0.5 ms (BENCHMARKS.md, "GIL").
+GUI_SWITCH_INTERVAL_S = 0.0005
 
 
 def lower_thread_priority(increment: int = WORKER_NICENESS) -> None:
@@ -52,6 +59,12 @@ def lower_thread_priority(increment: int = WORKER_NICENESS) -> None:
         os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + increment)
     except OSError:
         pass
+
+
+def favour_gui_thread() -> None:
+    """Let the GUI thread have the GIL back within GUI_SWITCH_INTERVAL_S when a worker
+    thread holds it (process-wide; never lengthens a shorter interval set elsewhere)."""
+    sys.setswitchinterval(min(sys.getswitchinterval(), GUI_SWITCH_INTERVAL_S))
 
 
 def _dlopen_without_gil(path: str) -> bool:

@@ -103,3 +103,24 @@ def test_cancel_and_shutdown_drop_pending_work(qtbot) -> None:
     job.request(lambda: "after", delay=False)
     qtbot.wait(100)
     assert compute.payloads == [] and not job.running
+
+
+def test_the_gui_thread_gets_the_gil_back_within_half_a_millisecond(window) -> None:
+    """The window shortens Python's switch interval (5 ms), which the GUI thread would
+    otherwise wait after every call that released the GIL beside a busy worker thread."""
+    import sys
+
+    from sweepedit.app.worker import GUI_SWITCH_INTERVAL_S, favour_gui_thread
+
+    assert GUI_SWITCH_INTERVAL_S <= 0.001
+    assert sys.getswitchinterval() == pytest.approx(GUI_SWITCH_INTERVAL_S, rel=0.05)
+    before = sys.getswitchinterval()
+    try:
+        sys.setswitchinterval(0.0001)  # someone chose a shorter one: it is kept
+        favour_gui_thread()
+        assert sys.getswitchinterval() == pytest.approx(0.0001, rel=0.05)
+        sys.setswitchinterval(0.005)
+        favour_gui_thread()
+        assert sys.getswitchinterval() == pytest.approx(GUI_SWITCH_INTERVAL_S, rel=0.05)
+    finally:
+        sys.setswitchinterval(before)

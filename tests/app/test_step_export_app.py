@@ -20,7 +20,7 @@ def test_export_step_in_the_background_and_cancel(window, qtbot, small_files,
     assert window.act_export_step.isEnabled()
     out = tmp_path / "box.step"
     assert window.export_step(out)
-    qtbot.waitUntil(lambda: window._step_job.isFinished(), timeout=60_000)
+    qtbot.waitUntil(lambda: window.files.step_job.isFinished(), timeout=60_000)
     qtbot.waitUntil(lambda: "Exported 2 solid(s)" in window.statusBar().currentMessage(),
                     timeout=5_000)
     assert window.errors == []
@@ -28,7 +28,7 @@ def test_export_step_in_the_background_and_cancel(window, qtbot, small_files,
     # Cancelled at once: nothing is written, and no error is shown.
     cancelled = tmp_path / "cancelled.step"
     assert window.export_step(cancelled, union=True)
-    window._step_job.cancel()
-    qtbot.waitUntil(lambda: window._step_job.isFinished(), timeout=60_000)
+    window.files.step_job.cancel()
+    qtbot.waitUntil(lambda: window.files.step_job.isFinished(), timeout=60_000)
     qtbot.waitUntil(lambda: "cancelled" in window.statusBar().currentMessage(), timeout=5_000)
     assert not cancelled.exists() and window.errors == []
