@@ -30,7 +30,7 @@ from sweepedit.io.params import read_abstraction
 from sweepedit.io.step import StepExportError, primitive_solid
 from sweepedit.io.step import solids as step_solids
 from sweepedit.io.step.checks import is_crossing, self_interference
-from sweepedit.io.step.writer import _as_written
+from sweepedit.io.step.writer import as_written
 
 
 def main() -> None:
@@ -52,7 +52,7 @@ def main() -> None:
         verdict = ours(loft, planes)
         ours_s = time.perf_counter() - start
         try:  # the solid as STEP export would check it
-            solid = _as_written(
+            solid = as_written(
                 step_solids._sewn_solid(current["primitive"], loft, None, "loft"), "loft")
         except Exception:  # a loft OpenCascade cannot make a solid of
             return verdict

@@ -41,7 +41,7 @@ from sweepedit.io.occupancy import winding_numbers
 from sweepedit.io.params import read_abstraction
 from sweepedit.io.step import export_step, read_step
 from sweepedit.io.step.checks import is_crossing, self_interference, solid_volume
-from sweepedit.io.step_workers import start_helper
+from sweepedit.io.step.workers import start_helper
 
 DEFAULT_PARAMS = Path(__file__).resolve().parents[2] / "shared" / "sweepnet_params"
 
@@ -184,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
         folder = Path(tmp)
         export_one(random_primitive(rng), folder, None)  # imports and caches, not timed
         # A process that makes many exports keeps a helper building folding primitives
-        # on the second core, as the app does (io/step_workers.py); started untimed.
+        # on the second core, as the app does (io/step/workers.py); started untimed.
         start_helper()
         rows = [export_one(random_primitive(rng), folder, None) for _ in range(args.random)]
         result["random_non_folding"] = summary(rows, 1e-3)

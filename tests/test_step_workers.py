@@ -1,4 +1,4 @@
-"""Building a STEP export's solids on two cores (io/step_workers.py): what the helper
+"""Building a STEP export's solids on two cores (io/step/workers.py): what the helper
 process sends back is the solid this process would build, to the last bit; its errors
 are raised here as they were; its death, a stall or a cancel never lose an export."""
 
@@ -13,7 +13,6 @@ from crossing import CROSSING
 
 from sweepedit.errors import SweepeditError
 from sweepedit.geometry.model import Abstraction, SweepPrimitive
-from sweepedit.io import step_workers
 from sweepedit.io.step import (
     ExportCancelledError,
     export_step,
@@ -21,9 +20,10 @@ from sweepedit.io.step import (
     primitive_solids,
     read_step,
 )
+from sweepedit.io.step import workers as step_workers
 from sweepedit.io.step.checks import solid_volume
 from sweepedit.io.step.solids import sections_cross
-from sweepedit.io.step_workers import build_all, solid_bytes, solid_from_bytes
+from sweepedit.io.step.workers import build_all, solid_bytes, solid_from_bytes
 
 needs_occ = pytest.mark.skipif(importlib.util.find_spec("OCP") is None,
                                reason="the cad extra (cadquery-ocp-novtk) is not installed")

@@ -41,7 +41,7 @@ class StepExportThread(QThread):
 
     def run(self) -> None:  # in the worker thread
         from sweepedit.io.step import ExportCancelledError, export_step
-        from sweepedit.io.step_workers import start_helper
+        from sweepedit.io.step.workers import start_helper
 
         lower_thread_priority()
         start_helper()  # kept for the next exports: folding primitives built on two cores

@@ -30,6 +30,8 @@ The modules, each importing only those above it:
 - writer.py: the STEP file with names and colours, read back checked; read_step;
 - solids.py: one primitive's B-rep solid, lofted through slices where its sections cross;
 - union.py: the fuse of the solids into one, checked and mended;
+- workers.py: the solids built on two cores, by a helper process (`python -m
+  sweepedit.io.step`, __main__.py) that the app keeps;
 - export.py: export_step, which builds, fuses and writes.
 """
 

@@ -51,7 +51,7 @@ def is_valid(shape: Any, parallel: bool = False) -> bool:
     return BRepCheck_Analyzer(shape, True, parallel).IsValid()
 
 
-def _check_solid(shape: Any, expected: float, tolerance: float, what: str,
+def check_solid(shape: Any, expected: float, tolerance: float, what: str,
                  truth: str, parallel: bool = False) -> None:
     if not is_valid(shape, parallel):
         raise StepExportError(f"{what}: OpenCascade's checker finds the solid invalid")

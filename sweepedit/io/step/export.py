@@ -1,5 +1,5 @@
 """export_step: the visible primitives of an abstraction written to a STEP file, one
-named, coloured solid each (solids.py, built on two cores by io/step_workers.py) or one
+named, coloured solid each (solids.py, built on two cores by io/step/workers.py) or one
 fused solid (union.py), every solid checked before anything is written and the file read
 back checked (writer.py)."""
 
@@ -16,11 +16,11 @@ from sweepedit.errors import SweepeditError
 from sweepedit.geometry.model import Abstraction
 from sweepedit.geometry.volumes import UnionVolumes
 from sweepedit.io.params import atomic_write_bytes, require_folder
-from sweepedit.io.step.occ import ExportCancelledError, _occ, is_step_path
-from sweepedit.io.step.solids import _describe, primitive_solids, sections_cross
-from sweepedit.io.step.union import _union_bytes
-from sweepedit.io.step.writer import _step_bytes
-from sweepedit.io.step_workers import build_all
+from sweepedit.io.step.occ import ExportCancelledError, is_step_path, load_occ
+from sweepedit.io.step.solids import describe_primitive, primitive_solids, sections_cross
+from sweepedit.io.step.union import union_bytes
+from sweepedit.io.step.workers import build_all
+from sweepedit.io.step.writer import step_bytes
 
 Progress = Callable[[float, str], None]
 Cancelled = Callable[[], bool]
@@ -52,7 +52,7 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
     chosen = [(i, p) for i, p in enumerate(abstraction.primitives) if p.visible]
     if not chosen:
         raise SweepeditError(f"{path}: the abstraction has no visible primitives to export")
-    _occ()
+    load_occ()
     normalization = abstraction.normalization if original_frame else None
     report = progress or (lambda fraction, text: None)
 
@@ -73,16 +73,17 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
         volumes = pool.submit(UnionVolumes, [p for _, p in chosen]) if union else None
         built = build_all(chosen, normalization, lambda k: next(searches[k]),
                           [sections_cross(p) for _, p in chosen],
-                          lambda k, done: step(done, f"building {_describe(*chosen[k])}"),
+                          lambda k, done: step(done, f"building {describe_primitive(*chosen[k])}"),
                           lambda done: step(done, "building the solids"))
     solids = [solid for solid, _, _ in built]
     seconds = [took for _, took, _ in built]
     builds = [search if here else islice(primitive_solids(p, i, normalization), 1, None)
               for search, (_, _, here), (i, p) in zip(searches, built, chosen, strict=True)]
     if union:
-        data = _union_bytes(solids, [p for _, p in chosen], [_describe(i, p) for i, p in chosen],
-                            builds, seconds, path, normalization, volumes.result(),
-                            lambda text: step(len(chosen) + 1, text))
+        names = [describe_primitive(i, p) for i, p in chosen]
+        data = union_bytes(solids, [p for _, p in chosen], names, builds, seconds, path,
+                           normalization, volumes.result(),
+                           lambda text: step(len(chosen) + 1, text))
         solids_written = 1
         step(len(chosen) + 2, f"writing {path.name}")
     else:
@@ -91,8 +92,8 @@ def export_step(abstraction: Abstraction, path: str | Path, *, union: bool = Fal
         step(len(chosen), f"writing {path.name}")
         # Each solid alone is well within the budget. A solid whose sections cross was
         # checked for crossing itself already: by its loft's own test, or as read back
-        # from its own STEP text (_as_written); the file is read back for its validity.
-        data = _step_bytes(parts, path, ["validity" if sections_cross(p) else "crossing"
+        # from its own STEP text (as_written); the file is read back for its validity.
+        data = step_bytes(parts, path, ["validity" if sections_cross(p) else "crossing"
                                          for _, p in chosen])
         solids_written = len(parts)
     atomic_write_bytes(path, data)

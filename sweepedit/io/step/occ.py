@@ -3,7 +3,7 @@ are STEP files, and the sewing tolerance that building and checking solids both 
 
 OpenCascade (the `cad` extra, package cadquery-ocp-novtk) is imported only when a STEP
 file is made, so the rest of sweepedit works without it: the modules of this package
-import OCP only inside their functions, and _occ() turns its absence into
+import OCP only inside their functions, and load_occ() turns its absence into
 CadUnavailableError with the line that says how to install it.
 """
 
@@ -44,7 +44,7 @@ def is_step_path(path: str | Path) -> bool:
     return Path(path).suffix.lower() in STEP_FORMATS
 
 
-def _occ() -> Any:
+def load_occ() -> Any:
     """The OCP package, or CadUnavailableError with the line that says how to install it."""
     try:
         import OCP

@@ -34,9 +34,9 @@ from sweepedit.geometry.slices import (
 )
 from sweepedit.geometry.sweep import axis_points, scaling_factor, superellipse
 from sweepedit.geometry.volumes import closed_form_volume, fold_volume
-from sweepedit.io.step.checks import _check_solid, crosses_itself
-from sweepedit.io.step.occ import SEW_TOLERANCE, StepExportError, _occ
-from sweepedit.io.step.writer import _as_written
+from sweepedit.io.step.checks import check_solid, crosses_itself
+from sweepedit.io.step.occ import SEW_TOLERANCE, StepExportError, load_occ
+from sweepedit.io.step.writer import as_written
 
 # A solid's volume must match the closed form this closely (relative).
 VOLUME_TOLERANCE = 1e-3
@@ -112,11 +112,11 @@ def _cap_face(faces: Sequence[Any], first: bool) -> Any:
     return maker.Face()
 
 
-def _transform_poles(poles: np.ndarray, normalization: Normalization | None) -> np.ndarray:
+def transform_poles(poles: np.ndarray, normalization: Normalization | None) -> np.ndarray:
     return poles if normalization is None else normalization.to_original(poles)
 
 
-def _describe(index: int, primitive: SweepPrimitive) -> str:
+def describe_primitive(index: int, primitive: SweepPrimitive) -> str:
     """How errors name a primitive: by its name, else by its 0-based index."""
     return f"primitive '{primitive.name}'" if primitive.name else f"primitive {index}"
 
@@ -141,8 +141,8 @@ def primitive_solids(primitive: SweepPrimitive, index: int = 0,
     primitive whose sections cross, each other solid of it that passes the same checks
     (sliced another way), as a union's fuse may want one (export_step). Lazy: the others
     are searched for only when asked, continuing where the first stopped."""
-    _occ()
-    what = _describe(index, primitive)
+    load_occ()
+    what = describe_primitive(index, primitive)
     primitive.validate(index)
     # Where the axis comes back, the sweep overlaps itself: the closed form counts that
     # twice, and a loft through its sections would intersect itself.
@@ -156,7 +156,7 @@ def primitive_solids(primitive: SweepPrimitive, index: int = 0,
     for share in (AXIS_TOLERANCE, AXIS_TOLERANCE / 16.0):
         solid = _sewn_solid(primitive, side_surface(primitive, share), normalization, what)
         try:
-            _check_solid(solid, expected, VOLUME_TOLERANCE, what, "its closed-form volume")
+            check_solid(solid, expected, VOLUME_TOLERANCE, what, "its closed-form volume")
         except StepExportError:
             if share != AXIS_TOLERANCE:
                 raise
@@ -174,7 +174,7 @@ def _sewn_solid(primitive: SweepPrimitive, surf: SideSurface,
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
-    faces = [_bspline_face(surf.t_knots, k, _transform_poles(p, normalization))
+    faces = [_bspline_face(surf.t_knots, k, transform_poles(p, normalization))
              for k, p in surf.patches]
     faces += [_cap_face(faces[:4], True), _cap_face(faces[:4], False)]
     scale = 1.0 if normalization is None else normalization.scale
@@ -269,7 +269,7 @@ def _sliced_solids(primitive: SweepPrimitive, normalization: Normalization | Non
     the tolerance of the volume that expected() gives (-> volume, tolerance; asked for
     only once there are rings to loft) and do not cross themselves (geometry/loft.py's
     loft_verdict on the loft's samples, or where that cannot tell, OpenCascade's
-    crosses_itself on the solid as read back from its STEP text, _as_written), best
+    crosses_itself on the solid as read back from its STEP text, as_written), best
     first. Those that OpenCascade checked are yielded as read back, so a file need not
     check them for crossing again; those that loft_verdict vouches for as built (a write
     and read back less: 0.06 s of the 0.5 s of a folding primitive, BENCHMARKS.md, STEP
@@ -302,10 +302,10 @@ def _sliced_solids(primitive: SweepPrimitive, normalization: Normalization | Non
             volume, tolerance = expected()  # its error is the primitive's, not the loft's
             try:
                 solid = _sewn_solid(primitive, loft, normalization, what)
-                _check_solid(solid, volume, tolerance, what,
+                check_solid(solid, volume, tolerance, what,
                              "the quasi-Monte Carlo estimate of its sections' union")
                 if verdict is LoftVerdict.UNKNOWN:
-                    solid = _as_written(solid, what)
+                    solid = as_written(solid, what)
                     if crosses_itself(solid):
                         continue
             except StepExportError:

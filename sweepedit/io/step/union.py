@@ -19,10 +19,10 @@ from sweepedit.geometry.volumes import (
     fold_volume,
     union_bounds,
 )
-from sweepedit.io.step.checks import _check_solid, is_valid, solid_volume
+from sweepedit.io.step.checks import check_solid, is_valid, solid_volume
 from sweepedit.io.step.occ import StepExportError
-from sweepedit.io.step.solids import _transform_poles, sections_cross
-from sweepedit.io.step.writer import _step_bytes
+from sweepedit.io.step.solids import sections_cross, transform_poles
+from sweepedit.io.step.writer import step_bytes
 
 # The union's volume must match the quasi-Monte Carlo estimate (geometry.volumes.
 # union_volume: 8 scrambled Sobol sets of 2^15 points) this closely (relative), besides how
@@ -165,7 +165,7 @@ def left_out(fused: Any, volumes: UnionVolumes, normalization: Normalization | N
     classifier = BRepClass3d_SolidClassifier(fused)
     dropped = []
     for k in range(volumes.count):
-        points = _transform_poles(volumes.only_inside(k, LEFT_OUT_POINTS), normalization)
+        points = transform_poles(volumes.only_inside(k, LEFT_OUT_POINTS), normalization)
         outside = 0
         for n, point in enumerate(points):
             classifier.Perform(gp_Pnt(*(float(x) for x in point)), 1e-7 * size)
@@ -223,7 +223,7 @@ class _OtherSolids:
         return self._found[k][n]
 
 
-def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: list[str],
+def union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: list[str],
                  builds: Sequence[Iterator[Any]], seconds: Sequence[float], path: Path,
                  normalization: Normalization | None, volumes: UnionVolumes,
                  say: Callable[[str], None]) -> bytes:
@@ -252,7 +252,7 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
     def written(union: Any, volume: float) -> bytes:
         # A union read back is checked by OpenCascade's checker too: one fused with
         # its solids nudged came back invalid from a file once (bone.json).
-        return _step_bytes([(union, path.stem, primitives[0].color)], path,
+        return step_bytes([(union, path.stem, primitives[0].color)], path,
                            checks=["validity"],
                            budget=STEP_BYTES_PER_PRIMITIVE * len(primitives),
                            volumes=[volume])
@@ -262,7 +262,7 @@ def _union_bytes(solids: list[Any], primitives: list[SweepPrimitive], names: lis
         # only as read back against it: with those curves the volume takes twice as
         # long to integrate (glyph_8.json: 0.47 s against 0.22 s), and a fuse that
         # went wrong is known before they are made (BENCHMARKS.md, STEP export).
-        _check_solid(fused, estimate * scale3, tolerance, "the union",
+        check_solid(fused, estimate * scale3, tolerance, "the union",
                      "the exact inside test's quasi-Monte Carlo estimate", parallel=True)
         volume = solid_volume(fused)
         simplified = simplify_edge_curves(fused)
@@ -383,7 +383,7 @@ def _fused_stepwise(solids: list[Any], order: list[int], primitives: list[SweepP
                                          estimate, error, scale3)
             try:
                 candidate = fuse()
-                _check_solid(candidate, estimate * scale3, tolerance, "the union",
+                check_solid(candidate, estimate * scale3, tolerance, "the union",
                              f"the exact inside test's estimate with {what} added")
             except StepExportError:
                 continue

@@ -1,7 +1,7 @@
 """Writing solids as an AP214 STEP file with names and colours, and reading it back:
 the bytes of a file whose solids read back as checked (their volumes, and validity or
 crossing), with STEP_DECIMALS decimals where that reads back so, else OpenCascade's own
-13 digits; one solid as it reads back from its STEP text (_as_written); read_step."""
+13 digits; one solid as it reads back from its STEP text (as_written); read_step."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from typing import Any, Literal
 
 from sweepedit.errors import SweepeditError
 from sweepedit.io.step.checks import crosses_itself, is_valid, solid_volume
-from sweepedit.io.step.occ import StepExportError, _occ
+from sweepedit.io.step.occ import StepExportError, load_occ
 
 # A solid read back from the file written must have the volume checked in memory this
 # closely (relative): what it catches is gross (a solid inside out, -100 %; a face
@@ -40,7 +40,7 @@ def _color(hex_color: str) -> Any:
     return Quantity_Color(*rgb, Quantity_TOC_sRGB)
 
 
-def _step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
+def step_bytes(parts: Sequence[tuple[Any, str, str]], path: Path,
                 checks: Sequence[ReadBackCheck], budget: int | None = None,
                 volumes: Sequence[float] | None = None) -> bytes:
     """Shapes with names and colours [(shape, name, '#rrggbb')] as the bytes of an AP214
@@ -81,7 +81,7 @@ def _checked_bytes(parts: list[tuple[Any, str, str]], tmp: Path, path: Path,
                    checks: list[ReadBackCheck], expected: list[float], face_curves: bool,
                    written: bool = False) -> bytes:
     """_read_back_checked with STEP_DECIMALS decimals, else with all digits (see
-    _step_bytes). `written`: tmp already holds `parts` written with STEP_DECIMALS
+    step_bytes). `written`: tmp already holds `parts` written with STEP_DECIMALS
     decimals and these face_curves."""
     try:
         return _read_back_checked(parts, tmp, path, STEP_DECIMALS, checks, expected,
@@ -196,7 +196,7 @@ def _write_step(parts: Sequence[tuple[Any, str, str]], tmp: Path, path: Path,
     tmp.write_text(text + "\n", encoding="utf-8")
 
 
-def _as_written(solid: Any, what: str) -> Any:
+def as_written(solid: Any, what: str) -> Any:
     """The solid as read back from the STEP text export_step writes of it (with
     STEP_DECIMALS decimals): a folding solid is checked for crossing itself once, as it
     will be read, where checking it in memory and again read back from the file cost
@@ -235,7 +235,7 @@ class StepSolid:
 def read_step(path: str | Path) -> list[StepSolid]:
     """The top-level shapes of a STEP file with their names and colours (OpenCascade's
     XCAF reader); used to check what export_step wrote."""
-    _occ()
+    load_occ()
     from OCP.collections import Sequence_TDF_Label
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.Quantity import Quantity_Color, Quantity_TOC_sRGB

@@ -5,7 +5,7 @@ solid beside the first; a second process can. A folding primitive's solid takes 
 of mostly single-threaded work (slicing, lofting, checks), and a union of 8 with several
 of them spent about half its time building them (BENCHMARKS.md, STEP export).
 
-The helper is a fresh interpreter (`python -m sweepedit.io.step_workers`), not a fork: a
+The helper is a fresh interpreter (`python -m sweepedit.io.step`), not a fork: a
 fork made after OpenCascade's thread pool has run deadlocks in its first boolean check
 (the pool's threads do not exist in a fork). A fresh one takes about 5 s to import
 OpenCascade and load the compiled kernels, so it is started by the first export that can
@@ -210,7 +210,7 @@ class _Helper:
         replies_read, replies_write = os.pipe()
         # Its replies come on their own pipe: OpenCascade prints to stdout.
         self._process = subprocess.Popen(
-            [sys.executable, "-m", "sweepedit.io.step_workers", str(replies_write)],
+            [sys.executable, "-m", "sweepedit.io.step", str(replies_write)],
             stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             pass_fds=(replies_write,), close_fds=True)
         os.close(replies_write)
@@ -297,10 +297,10 @@ def _serve(replies: BinaryIO, requests: BinaryIO) -> None:
     import numpy as np
 
     from sweepedit.geometry.inside import inside_union
-    from sweepedit.io.step.occ import _occ
+    from sweepedit.io.step.occ import load_occ
     from sweepedit.io.step.solids import primitive_solids
 
-    _occ()
+    load_occ()
     # The compiled inside test loaded before the first solid is asked for.
     inside_union(np.zeros((1, 3)), [SweepPrimitive([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0]],
                                                    a=0.1, b=0.1, degree=2.0)])
@@ -362,6 +362,8 @@ def solid_from_bytes(data: bytes) -> Any:
     return TopoDS.Solid(shape)
 
 
-if __name__ == "__main__":
-    with os.fdopen(int(sys.argv[1]), "wb") as replies_out:
+def serve_helper(replies_fd: int) -> None:
+    """The helper process's whole life (`python -m sweepedit.io.step REPLIES_FD`): requests
+    on stdin, replies on the inherited file descriptor."""
+    with os.fdopen(replies_fd, "wb") as replies_out:
         _serve(replies_out, sys.stdin.buffer)
