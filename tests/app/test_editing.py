@@ -340,3 +340,51 @@ def test_camera_presets_look_along_the_expected_direction(qtbot, window, small_f
     assert np.allclose(camera().GetFocalPoint(), (b[0::2] + b[1::2]) / 2, atol=1e-9)
     whole = np.array(window.plotter.renderer.ComputeVisiblePropBounds())
     assert not np.allclose((b[0::2] + b[1::2]) / 2, (whole[0::2] + whole[1::2]) / 2)
+
+
+def test_dragging_a_control_point_leaves_the_primitive_list_unpainted(qtbot, window,
+                                                                      small_files) -> None:
+    """A drag changes nothing the list shows: its rows are not repainted on every move
+    (on software GL each repaint is recomposed into the window); a colour change still
+    shows in the row's swatch."""
+    from PySide6.QtCore import QEvent, QObject, Qt
+
+    class PaintCounter(QObject):
+        def __init__(self) -> None:
+            super().__init__()
+            self.count = 0
+
+        def eventFilter(self, _obj, event) -> bool:  # noqa: N802 (Qt API)
+            self.count += event.type() == QEvent.Type.Paint
+            return False
+
+    window.open_path(small_files["obj"])
+    window.open_path(small_files["json"])
+    window.doc.select(0)
+    tree = window.list_panel.tree
+    counter = PaintCounter()
+    tree.viewport().installEventFilter(counter)
+    qtbot.wait(100)
+    counter.count = 0
+    start = window.doc.primitive(0).control_points[1].copy()
+    for k in range(20):
+        assert window.scene.drag_control_point(0, 1, start + np.array([0, 0.002 * k, 0]))
+        qtbot.wait(5)
+    window.scene.end_drag()
+    qtbot.wait(50)
+    assert counter.count == 0
+    # A tooltip still tells the current profile.
+    assert "a=0.220" in tree.topLevelItem(0).toolTip(0)
+
+    def swatch_centre() -> tuple[int, int, int]:
+        icon = tree.topLevelItem(0).icon(0)
+        colour = icon.pixmap(14, 14).toImage().pixelColor(7, 7)
+        return colour.red(), colour.green(), colour.blue()
+
+    window.stack.push(set_field(window.doc, 0, "color", "#00ff00"))
+    qtbot.wait(50)
+    assert counter.count > 0
+    assert swatch_centre() == (0, 255, 0)
+    window.stack.undo()
+    assert tree.topLevelItem(0).data(0, Qt.ItemDataRole.UserRole) != "#00ff00"
+    assert swatch_centre() != (0, 255, 0)

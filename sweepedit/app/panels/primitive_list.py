@@ -96,7 +96,11 @@ class PrimitiveListPanel(QWidget):
     def _fill(self, item: QTreeWidgetItem, index: int) -> None:
         prim = self.doc.primitive(index)
         item.setText(self.COL_NAME, prim.name or f"primitive {index + 1}")
-        item.setIcon(self.COL_NAME, color_icon(prim.color))
+        # Qt cannot tell two icons apart, so a new one repaints the row: only when the
+        # colour changed (not on every move of a drag).
+        if item.data(self.COL_NAME, Qt.ItemDataRole.UserRole) != prim.color:
+            item.setData(self.COL_NAME, Qt.ItemDataRole.UserRole, prim.color)
+            item.setIcon(self.COL_NAME, color_icon(prim.color))
         item.setToolTip(self.COL_NAME, f"{prim.n_control_points} control points, "
                         f"a={prim.a:.3f} b={prim.b:.3f} d={prim.degree:.2f}")
         item.setCheckState(self.COL_VISIBLE, Qt.CheckState.Checked if prim.visible
