@@ -2,8 +2,8 @@
 shown), New and Close, saving, exporting meshes, STEP solids and the official format,
 recent files, and recovering the unsaved edits of an editor that is gone.
 
-The user is asked and told through `UserPrompts` (the window), looked up at each call so
-that tests can replace the window's dialogs.
+The user is asked and told through `UserPrompts` (sweepedit.app.prompts: the window,
+which is also the file dialogs' parent).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import copy
 import errno
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 from PySide6.QtCore import QObject, QSettings, Qt
 from PySide6.QtWidgets import QApplication, QFileDialog, QMenu, QWidget
@@ -20,6 +20,7 @@ from PySide6.QtWidgets import QApplication, QFileDialog, QMenu, QWidget
 from sweepedit.app.autosave import Autosaver, Recovery
 from sweepedit.app.commands import CommandStack, ReplacePrimitives
 from sweepedit.app.document import Document
+from sweepedit.app.prompts import UserPrompts
 from sweepedit.app.worker import call_keeping_window_live
 from sweepedit.errors import SweepeditError
 from sweepedit.geometry.model import Abstraction
@@ -30,16 +31,6 @@ SHAPE_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".binvox", 
 MESH_EXPORT_TYPES = {"OBJ (*.obj)": "obj", "PLY (*.ply)": "ply", "STL (*.stl)": "stl",
                      "GLB (*.glb)": "glb"}
 MAX_RECENT = 10
-
-
-class UserPrompts(Protocol):
-    """What FileControl needs from the window: the dialog parent and its questions."""
-
-    def report_error(self, title: str, message: str) -> None: ...
-    def ask_save_changes(self) -> str: ...
-    def ask_keep_primitives(self, shape_name: str) -> str: ...
-    def ask_recover(self, recovery: Recovery) -> bool: ...
-    def show_status(self, message: str, timeout_ms: int = 6000) -> None: ...
 
 
 class FileControl(QObject):

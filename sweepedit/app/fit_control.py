@@ -12,7 +12,6 @@ from __future__ import annotations
 import atexit
 import contextlib
 import time
-from collections.abc import Callable
 from types import SimpleNamespace
 from typing import Any
 
@@ -21,6 +20,7 @@ from PySide6.QtCore import QObject, QTimer, Signal
 from sweepedit.app.commands import CommandStack, apply_fit
 from sweepedit.app.document import Document
 from sweepedit.app.panels import FitPanel
+from sweepedit.app.prompts import UserPrompts
 from sweepedit.app.scene import SweepScene
 from sweepedit.app.worker import FitThread, FitUpdate, load_fit_api, refit_loader, with_locked
 from sweepedit.errors import SweepeditError
@@ -66,22 +66,18 @@ def fewer_primitives_text(asked: Any, got: int, stopped: bool) -> str:
 class FitControl(QObject):
     """Runs one background fit at a time for a Document shown in a SweepScene, reporting
     to a FitPanel. running_changed(bool) when a fit starts and when it ends (the window
-    locks editing meanwhile). `report_error(title, message)` and
-    `show_status(message, milliseconds)` tell the user."""
+    locks editing meanwhile). `prompts` (the window) tells the user."""
 
     running_changed = Signal(bool)
 
     def __init__(self, doc: Document, stack: CommandStack, scene: SweepScene, panel: FitPanel,
-                 report_error: Callable[[str, str], None],
-                 show_status: Callable[[str, int], None],
-                 parent: QObject | None = None) -> None:
+                 prompts: UserPrompts, parent: QObject | None = None) -> None:
         super().__init__(parent)
         self.doc = doc
         self.stack = stack
         self.scene = scene
         self.panel = panel
-        self.report_error = report_error
-        self.show_status = show_status
+        self.prompts = prompts
         self.thread: FitThread | None = None
         self.last_result: Any = None
         self.last_cancel_timing: dict[str, float] = {}
@@ -100,7 +96,7 @@ class FitControl(QObject):
         if self.running:
             return False
         if self.doc.shape is None:
-            self.report_error("Cannot fit", "Open a shape first: the fit needs a target.")
+            self.prompts.report_error("Cannot fit", "Open a shape first: the fit needs a target.")
             return False
         self._values = dict(values)
         self._preview = None
@@ -211,7 +207,7 @@ class FitControl(QObject):
         try:
             self.stack.push(apply_fit(self.doc, prims, record))
         except SweepeditError as exc:
-            self.report_error("Fit result rejected", str(exc))
+            self.prompts.report_error("Fit result rejected", str(exc))
             self.panel.finish("The fit returned invalid primitives.")
             return
         self.doc.select(None)
@@ -224,7 +220,7 @@ class FitControl(QObject):
         if shortfall:
             message = f"{message}. {shortfall}"
         self.panel.finish(message)
-        self.show_status(shortfall or message, 15000)
+        self.prompts.show_status(shortfall or message, 15000)
 
     def _on_failed(self, message: str) -> None:
         if self.thread is None:
@@ -232,7 +228,7 @@ class FitControl(QObject):
         self.scene.end_preview()
         self._finish()
         self.panel.finish("Fit failed.")
-        self.report_error("Fit failed", message)
+        self.prompts.report_error("Fit failed", message)
 
     def _finish(self) -> None:
         self.thread = None

@@ -138,11 +138,8 @@ class MainWindow(QMainWindow):
         self._make_toolbar()
         self._make_docks()
         self._make_status_bar()
-        # The window's methods are looked up when called: tests replace them.
-        self.fit_control = FitControl(
-            self.doc, self.stack, self.scene, self.fit_panel,
-            report_error=lambda title, message: self.report_error(title, message),
-            show_status=lambda message, ms: self.show_status(message, ms), parent=self)
+        self.fit_control = FitControl(self.doc, self.stack, self.scene, self.fit_panel,
+                                      prompts=self, parent=self)
         self.fit_control.running_changed.connect(self._on_fit_running)
 
         self.metrics = MetricsRunner(self)

@@ -43,8 +43,8 @@ WORKER_NICENESS = 10
 # The GUI thread gives the GIL up many times a frame (numpy on arrays of more than a few
 # hundred items, Qt's event processing, rendering), and beside a thread running Python
 # (torch's import, the fit's own Python) it waits a whole interval to get it back each
-# time: a preview of 8 primitives took 291 ms beside one such thread at 5 ms, 50 ms at
-# 0.5 ms (BENCHMARKS.md, "GIL").
+# time: a preview of 8 primitives took 302 ms beside one such thread at 5 ms, 58 ms at
+# 0.5 ms (BENCHMARKS.md, "The GUI thread and the GIL").
 GUI_SWITCH_INTERVAL_S = 0.0005
 
 
