@@ -30,6 +30,7 @@ from sweepedit.app.commands import (
     move_control_point,
 )
 from sweepedit.app.document import DISPLAY, GEOMETRY, Connections, Document
+from sweepedit.app.frame_reuse import FrameReuse
 from sweepedit.errors import InvalidPrimitiveError, SweepeditError
 from sweepedit.geometry.mesher import TriangleMesh, sweep_mesh, sweep_meshes
 from sweepedit.geometry.model import SweepPrimitive
@@ -50,6 +51,10 @@ CLICK_SLOP = 4  # pixels a press may move and still count as a click
 GRID_STEP = 0.01  # Ctrl-drag snaps the offset to this (normalised frame: the shape is ~1)
 DRAG_KEYS = "(X/Y/Z axis, Shift plane, Ctrl snap, Esc cancel)"  # shown during a drag
 AXIS_PICK_SAMPLES = 256
+# A drag keeps the camera's clipping range while the range it needs lies inside and is
+# at least CLIP_SLACK of it at either end; a new range is widened by CLIP_MARGIN.
+CLIP_SLACK = 0.5
+CLIP_MARGIN = 0.9
 # Camera presets (Blender's numpad views, z up): the direction from the focal point to
 # the camera, and the view-up vector.
 VIEW_PRESETS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
@@ -152,6 +157,7 @@ class SweepScene:
         self._constraint: tuple[str, int] | None = None
         self._drag_delta = np.zeros(3)
         self._handle_points = np.zeros((0, 3))
+        self._clipping_range: tuple[float, float] | None = None
         # Where refusals are told (the window's status bar); None: silently.
         self.report: Any = None
 
@@ -159,6 +165,11 @@ class SweepScene:
         # Plain alpha blending for the translucent target (drawn front faces only): VTK's
         # default order-independent translucency costs ~15 ms a frame on software GL.
         plotter.renderer.SetUseOIT(False)
+        ren_win = plotter.render_window
+        layer = ren_win.GetNumberOfLayers()
+        ren_win.SetNumberOfLayers(layer + 1)
+        # Between the main renderer and the overlay: a drag redraws only what it changes.
+        self.frame_reuse = FrameReuse(ren_win, plotter.renderer, layer)
         self._init_overlay()
         self._primitive_picker = vtk.vtkCellPicker()
         self._primitive_picker.SetTolerance(0.0005)
@@ -180,6 +191,7 @@ class SweepScene:
         ren_win = self.plotter.render_window  # None once the view itself has closed
         if self._render_observer is not None and ren_win is not None:
             ren_win.RemoveObserver(self._render_observer)
+            self.frame_reuse.close()
         self._render_observer = None
 
     # -- overlay --------------------------------------------------------------------------
@@ -247,6 +259,22 @@ class SweepScene:
             b[0::2] = np.minimum(b[0::2], lo - 0.05)
             b[1::2] = np.maximum(b[1::2], hi + 0.05)
             main.ResetCameraClippingRange(*b)
+            self._steady_clipping_range(camera)
+        self.frame_reuse.begin_frame()
+
+    def _steady_clipping_range(self, camera: vtk.vtkCamera) -> None:
+        """Keep the last clipping range while it still holds the camera's new one and is
+        not much looser: the frames of a drag then share one depth mapping, which lets
+        them reuse the picture of what did not move (FrameReuse). When it must change,
+        the new range gets a margin, so that the next moves fit in it too."""
+        near, far = camera.GetClippingRange()
+        last = self._clipping_range
+        if (last is not None and last[0] <= near and far <= last[1]
+                and last[0] >= CLIP_SLACK * near and last[1] <= far / CLIP_SLACK):
+            camera.SetClippingRange(*last)
+            return
+        self._clipping_range = (near * CLIP_MARGIN, far / CLIP_MARGIN)
+        camera.SetClippingRange(*self._clipping_range)
 
     # -- rendering ------------------------------------------------------------------------
     def request_render(self) -> None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from gui_helpers import move, open_box, qpoint
 
 from sweepedit.app.commands import (
     SetControlPoints,
@@ -22,39 +23,6 @@ pytestmark = pytest.mark.gui
 
 DENSE = np.linspace(0.0, 1.0, 4001)
 ASYMMETRIC = np.array([[-0.4, -0.1, 0.05], [-0.2, 0.15, 0.1], [0.05, 0.05, -0.08]])
-
-
-def qpoint(window, world: np.ndarray):
-    """The widget position (logical pixels) of a world point."""
-    from PySide6.QtCore import QPoint
-
-    plotter = window.plotter
-    ratio = plotter.devicePixelRatioF()
-    d = window.scene.world_to_display(np.asarray(world, float)[None])[0]
-    return QPoint(round(d[0] / ratio), round(plotter.height() - 1 - d[1] / ratio))
-
-
-def move(window, pos, modifiers=None) -> None:
-    """A real mouse move with the left button held (and modifiers, e.g. Ctrl)."""
-    from PySide6.QtCore import QPointF, Qt
-    from PySide6.QtGui import QMouseEvent
-    from PySide6.QtWidgets import QApplication
-
-    plotter = window.plotter
-    event = QMouseEvent(QMouseEvent.Type.MouseMove, QPointF(pos),
-                        QPointF(plotter.mapToGlobal(pos)), Qt.MouseButton.NoButton,
-                        Qt.MouseButton.LeftButton,
-                        modifiers if modifiers is not None else Qt.KeyboardModifier.NoModifier)
-    QApplication.sendEvent(plotter, event)
-
-
-def open_box(qtbot, window, small_files) -> None:
-    window.open_path(small_files["obj"])
-    window.open_path(small_files["json"])
-    # Shortcuts reach an active window only.
-    window.activateWindow()
-    window.plotter.setFocus()
-    qtbot.waitUntil(window.isActiveWindow, timeout=5000)
 
 
 def menu_action(window, text: str):
