@@ -19,6 +19,9 @@ primitive selected. Medians (and p95) over --moves events:
    eight.txt): HeatMapper from nothing, and after an edit of one primitive (the app's
    case, target <= 0.3 s); then in the app, an edit until the map is recoloured.
 
+Sections 1-3 also say how their frames were drawn: reusing the picture of what did not
+change (sweepedit.app.frame_reuse), taking that picture, or in full.
+
 Runs about 2 minutes. --moves 5 --edits 2 is a smoke run (half a minute).
 """
 
@@ -54,6 +57,14 @@ def spin(app, seconds: float, until=None) -> None:
         if until is not None and until():
             return
         time.sleep(0.001)
+
+
+def frame_modes(reuse) -> str:
+    """How the frames since the last call were drawn (sweepedit.app.frame_reuse)."""
+    counts = dict(reuse.counts)
+    reuse.counts = dict.fromkeys(counts, 0)
+    return (f"{counts['reuse']} reused the picture, {counts['capture']} took it, "
+            f"{counts['plain']} drawn in full")
 
 
 class FrameCounter:
@@ -155,9 +166,13 @@ def main() -> int:
     print(f"view {size[0]}x{size[1]} px, {len(w.doc)} primitives over {SHAPE.name}")
 
     # 1. mouse path
+    reuse = w.scene.frame_reuse
+    reuse.counts = dict.fromkeys(reuse.counts, 0)
     times, renders = mouse_path(app, w, args.moves)
     print(f"1. mouse move -> frame in the window: {ms(times)}  (target median <= 20 ms); "
           f"renders per move (renders: moves): {dict(sorted(Counter(renders).items()))}")
+
+    print(f"   frames: {frame_modes(reuse)}")
 
     # 2. move + re-sweep + render
     scene, rw = w.scene, w.plotter.render_window
@@ -166,6 +181,7 @@ def main() -> int:
     for k in range(min(5, args.moves)):  # warm-up
         scene.drag_control_point(0, 1, cp0 + offsets[k])
         rw.Render()
+    frame_modes(reuse)  # the warm-up's frames not counted
     direct, sweep_only = [], []
     for k in range(args.moves):
         t = time.perf_counter()
@@ -177,6 +193,7 @@ def main() -> int:
     scene.end_drag()
     print(f"2. move + re-sweep + render: {ms(direct)}  (target median <= 12 ms)")
     print(f"   of which command + re-sweep + updates (panels, signals): {ms(sweep_only)}")
+    print(f"   frames: {frame_modes(reuse)}")
 
     # 3. slider step
     frames = FrameCounter(rw)
@@ -195,6 +212,7 @@ def main() -> int:
     w.stack.close_merge()
     frames.close()
     print(f"3. slider step -> frame: {ms(steps)}  (target: as fast as 1)")
+    print(f"   frames: {frame_modes(reuse)}")
 
     # 4. metrics after an edit
     spin(app, 10, until=lambda: not w.metrics.running)
