@@ -4,8 +4,9 @@ axis with draggable control-point handles.
 The scene listens to the Document and keeps one VTK actor per primitive; an edit
 re-sweeps only the primitive that changed and writes its points into the existing
 PolyData in place (no new actor), which keeps dragging interactive. The axis, the
-control polygon and the handles live in an overlay renderer (a second layer sharing
-the camera) so they stay visible although the axis runs inside the solid.
+control polygon and the handles live in an overlay renderer (a layer above, sharing the
+camera) so they stay visible although the axis runs inside the solid. Between the two,
+the frame reuse (sweepedit.app.frame_reuse) redraws only the actors an edit changed.
 
 Mouse dragging (sweepedit.app.scene_mouse) goes through `begin_drag` / `drag_to` /
 `end_drag`, which call `drag_control_point` - the same method the tests and benchmarks
@@ -51,8 +52,9 @@ CLICK_SLOP = 4  # pixels a press may move and still count as a click
 GRID_STEP = 0.01  # Ctrl-drag snaps the offset to this (normalised frame: the shape is ~1)
 DRAG_KEYS = "(X/Y/Z axis, Shift plane, Ctrl snap, Esc cancel)"  # shown during a drag
 AXIS_PICK_SAMPLES = 256
-# A drag keeps the camera's clipping range while the range it needs lies inside and is
-# at least CLIP_SLACK of it at either end; a new range is widened by CLIP_MARGIN.
+# While a primitive is selected (its handles shown), the view keeps the camera's clipping
+# range while the range it needs lies inside and is at least CLIP_SLACK of it at either
+# end; a new range is widened by CLIP_MARGIN.
 CLIP_SLACK = 0.5
 CLIP_MARGIN = 0.9
 # Camera presets (Blender's numpad views, z up): the direction from the focal point to
