@@ -37,21 +37,10 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from ant_window import SHAPE, SHARED, ant_window, spin
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-SHAPE = SHARED / "shapes" / "ant.ply"
-PARAMS = SHARED / "sweepnet_params" / "ant.txt"
 OPEN_SHAPE = SHARED / "shapes" / "elephant.off"
 SHAPE_SUFFIXES = {".obj", ".ply", ".stl", ".off", ".glb", ".gltf"}
-
-
-def spin(app, seconds: float, until=None) -> None:
-    end = time.perf_counter() + seconds
-    while time.perf_counter() < end:
-        app.processEvents()
-        if until is not None and until():
-            return
-        time.sleep(0.002)
 
 
 def stand_in_fit(shape, settings, *, locked=(), callback=None, cancel=None):
@@ -164,31 +153,11 @@ def main() -> int:
     if args.first_fit_only:
         return status
 
-    from PySide6.QtCore import QSettings, QTimer
+    from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QApplication
 
     app = QApplication.instance() or QApplication(sys.argv[:1])
-    from sweepedit.app.window import MainWindow
-    from sweepedit.geometry.model import Abstraction
-    from sweepedit.io.params import read_abstraction
-    from sweepedit.io.shapes import load_shape
-
-    settings = QSettings(str(Path("/tmp") / "sweepedit-bench.ini"), QSettings.Format.IniFormat)
-    w = MainWindow(settings=settings)
-    w.report_error = lambda title, message: print(f"error: {title}: {message}")
-    w.ask_save_changes = lambda: "discard"
-    # Section 4 opens another shape over the fitted primitives: no modal question.
-    w.ask_keep_primitives = lambda _name: "discard"
-    w.resize(1600, 1000)
-    w.show()
-    spin(app, 0.5)
-    shape = load_shape(SHAPE)
-    w.doc.set_shape(shape, SHAPE)
-    prims = read_abstraction(PARAMS).primitives[:8]
-    w.doc.set_abstraction(Abstraction(prims, normalization=shape.normalization), PARAMS)
-    w.stack.clear()
-    w.scene.reset_camera()
-    w.doc.select(0)
+    w, shape = ant_window(app, "sweepedit-bench.ini")
     spin(app, 0.5)
     size = w.plotter.render_window.GetSize()
     print(f"view {size[0]}x{size[1]} px, {len(w.doc)} primitives, target {SHAPE.name} "
@@ -260,7 +229,7 @@ def main() -> int:
         class StandInSettings:
             def __init__(self, **kw):
                 self.__dict__.update(kw)
-                self.start = prims
+                self.start = w.doc.primitives
 
         fit_control_module.load_fit_api = lambda: (stand_in_fit, StandInSettings)
         label = "stand-in thread holding the GIL in 20 ms pure-Python bursts (fit.py missing)"

@@ -36,10 +36,9 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from ant_window import SHAPE, SHARED, ant_window
+from ant_window import spin as spin_every
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-SHAPE = SHARED / "shapes" / "ant.ply"
-PARAMS = SHARED / "sweepnet_params" / "ant.txt"
 HEAT_SHAPE = SHARED / "shapes" / "eight.stl"
 HEAT_PARAMS = SHARED / "sweepnet_params" / "eight.txt"
 HEAT_VERTICES = 100_000
@@ -51,12 +50,7 @@ def ms(xs: list[float]) -> str:
 
 
 def spin(app, seconds: float, until=None) -> None:
-    end = time.perf_counter() + seconds
-    while time.perf_counter() < end:
-        app.processEvents()
-        if until is not None and until():
-            return
-        time.sleep(0.001)
+    spin_every(app, seconds, until, step=0.001)  # a finer wait than the other benchmarks'
 
 
 def frame_modes(reuse) -> str:
@@ -136,31 +130,13 @@ def main() -> int:
     parser.add_argument("--edits", type=int, default=10)
     args = parser.parse_args()
 
-    from PySide6.QtCore import QSettings
     from PySide6.QtWidgets import QApplication
 
     app = QApplication.instance() or QApplication(sys.argv[:1])
-    from sweepedit.app.window import MainWindow
-    from sweepedit.geometry.model import Abstraction
+    w, _ = ant_window(app, "sweepedit-bench-edit.ini", preload_fit=False)
     from sweepedit.io.params import read_abstraction
     from sweepedit.io.shapes import load_shape
 
-    settings = QSettings(str(Path(tempfile.gettempdir()) / "sweepedit-bench-edit.ini"),
-                         QSettings.Format.IniFormat)
-    w = MainWindow(settings=settings, preload_fit=False)
-    w.report_error = lambda title, message: print(f"error: {title}: {message}")
-    w.ask_save_changes = lambda: "discard"
-    w.ask_keep_primitives = lambda _name: "discard"  # opening section 5's shape
-    w.resize(1600, 1000)
-    w.show()
-    spin(app, 0.5)
-    shape = load_shape(SHAPE)
-    w.doc.set_shape(shape, SHAPE)
-    prims = read_abstraction(PARAMS).primitives[:8]
-    w.doc.set_abstraction(Abstraction(prims, normalization=shape.normalization), PARAMS)
-    w.stack.clear()
-    w.scene.reset_camera()
-    w.doc.select(0)
     spin(app, 1.0, until=lambda: not w.metrics.running)
     size = w.plotter.render_window.GetSize()
     print(f"view {size[0]}x{size[1]} px, {len(w.doc)} primitives over {SHAPE.name}")

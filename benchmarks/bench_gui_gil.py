@@ -19,13 +19,10 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
+from ant_window import PARAMS, SHAPE, ant_window
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-SHAPE = SHARED / "shapes" / "ant.ply"
-PARAMS = SHARED / "sweepnet_params" / "ant.txt"
 PYTHON_DEFAULT_S = 0.005
 
 
@@ -71,26 +68,12 @@ def main() -> int:
         print(f"needs {SHAPE} and {PARAMS}")
         return 1
 
-    from PySide6.QtCore import QSettings
     from PySide6.QtWidgets import QApplication
 
     app = QApplication.instance() or QApplication(sys.argv[:1])
-    from sweepedit.app.window import MainWindow
     from sweepedit.app.worker import GUI_SWITCH_INTERVAL_S
-    from sweepedit.geometry.model import Abstraction
-    from sweepedit.io.params import read_abstraction
-    from sweepedit.io.shapes import load_shape
 
-    settings = QSettings("/tmp/sweepedit-bench-gil.ini", QSettings.Format.IniFormat)
-    window = MainWindow(settings=settings, preload_fit=False)
-    window.resize(1600, 1000)
-    window.show()
-    shape = load_shape(SHAPE)
-    window.doc.set_shape(shape, SHAPE)
-    primitives = read_abstraction(PARAMS).primitives[:8]
-    window.doc.set_abstraction(Abstraction(primitives, normalization=shape.normalization), None)
-    window.scene.reset_camera()
-    window.doc.select(0)
+    window, _ = ant_window(app, "sweepedit-bench-gil.ini", preload_fit=False)
     for _ in range(50):
         app.processEvents()
         time.sleep(0.01)
