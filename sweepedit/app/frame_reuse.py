@@ -70,6 +70,7 @@ class FrameReuse:
         self._view: tuple = ()
         self._props: list[Any] = []
         self._stamps: dict[int, int] = {}  # id(prop) -> its redraw time after the last frame
+        self._under_state: tuple = ()
         self._live_ids: set[int] = set()
         self._stand_ins: dict[int, vtk.vtkActor] = {}  # id(original) -> stand-in
         self._hidden: list[Any] = []  # originals hidden for this frame
@@ -87,7 +88,8 @@ class FrameReuse:
         changed = {i for i, t in stamps.items() if self._stamps.get(i) != t}
         visible = [p for p in props if p.GetVisibility()]
         opaque = [p for p in visible if _opaque_actor(p)]
-        same_view = view == self._view
+        under = self._under()
+        same_view = view == self._view and _drawn_state(under) == self._under_state
         self._view = view
         opaque_ids = {id(p) for p in opaque}
         # What changed stays live with what was live before: a drag's next move, or
@@ -114,6 +116,10 @@ class FrameReuse:
         if mode == PLAIN:
             self._valid = False
         self.main.SetDraw(mode != REUSE)
+        # Renderers between the main one and the live one (the orientation axes) are in
+        # the picture too; their state is checked after each frame (_after_frame).
+        for renderer in self._under():
+            renderer.SetDraw(mode != REUSE)
         self.live.SetActiveCamera(self.main.GetActiveCamera())
         _copy_renderer_settings(self.main, self.live)
         for prop in props:
@@ -154,8 +160,19 @@ class FrameReuse:
             prop.VisibilityOn()
         self._hidden.clear()
         self.main.SetDraw(True)
-        # After the visibility toggles, so that only later edits count as changes.
+        under = self._under()
+        for renderer in under:
+            renderer.SetDraw(True)
+        # After the visibility toggles, so that only later edits count as changes; and
+        # after the frame, which may have moved the axes' camera along with the main one.
         self._stamps = {id(p): p.GetRedrawMTime() for p in _props(self.main)}
+        self._under_state = _drawn_state(under)
+
+    def _under(self) -> list[vtk.vtkRenderer]:
+        """The window's renderers between the main renderer's layer and the live one's."""
+        low, high = self.main.GetLayer(), self.live.GetLayer()
+        return [r for r in _items(self.window.GetRenderers())
+                if r is not self.main and low <= r.GetLayer() < high]
 
     # -- the picture ------------------------------------------------------------------------
     def _usable(self) -> bool:
@@ -221,6 +238,20 @@ class FrameReuse:
         self.live.RemoveAllViewProps()
         self._stand_ins.clear()
         self.window.RemoveRenderer(self.live)
+
+
+def _drawn_state(renderers: list[vtk.vtkRenderer]) -> tuple:
+    """What decides the pictures of `renderers`: viewport, camera, props and their times.
+    (By address: nothing may hold these Python wrappers, so their ids can change.)"""
+    state = []
+    for r in renderers:
+        c = r.GetActiveCamera()
+        state.append((r.GetAddressAsString("vtkObject"), r.GetLayer(), tuple(r.GetViewport()),
+                      c.GetPosition(), c.GetFocalPoint(), c.GetViewUp(),
+                      c.GetParallelScale(), c.GetClippingRange(),
+                      tuple((p.GetAddressAsString("vtkObject"), p.GetRedrawMTime())
+                            for p in _props(r))))
+    return tuple(state)
 
 
 def _items(collection: vtk.vtkCollection) -> list[Any]:

@@ -171,6 +171,13 @@ def test_changes_outside_the_live_set_and_view_changes_are_drawn_in_full(qtbot,
     assert frames.after(qtbot, lambda: (light.SetIntensity(0.6), scene.request_render())) \
         == PLAIN
     assert_same_picture(window)
+    # The orientation axes (a renderer of their own under the live layer, kept in the
+    # picture): a change there alone makes the next frame draw in full.
+    axes = window.plotter.renderer.axes_actor
+    assert edit_first(0.08) == CAPTURE
+    assert frames.after(qtbot, lambda: (axes.SetTotalLength(2.0, 0.5, 1.0),
+                                        scene.request_render())) == PLAIN
+    assert_same_picture(window)
     frames.close()
 
 
