@@ -98,19 +98,19 @@ class FrameReuse:
         if 2 * len(live_opaque) > len(opaque_ids):
             live_opaque = changed & opaque_ids
         if not (self.enabled and same_view and self._usable()):
-            self._set_mode(PLAIN, set(), props, changed)
+            self._set_mode(PLAIN, set(), props, changed, under)
         elif self._valid and self._cache is not None and changed <= self._live_ids:
-            self._set_mode(REUSE, self._live_ids, props, changed)
+            self._set_mode(REUSE, self._live_ids, props, changed, under)
         elif changed and 2 * len(live_opaque) <= len(opaque_ids):
             # Live: the changed opaque actors, and all that is not opaque.
             self._set_mode(CAPTURE, {id(p) for p in visible} - (opaque_ids - live_opaque),
-                           props, changed)
+                           props, changed, under)
         else:
-            self._set_mode(PLAIN, set(), props, changed)
+            self._set_mode(PLAIN, set(), props, changed, under)
         self.counts[self.mode] += 1
 
     def _set_mode(self, mode: str, live_ids: set[int], props: list[Any],
-                  changed: set[int]) -> None:
+                  changed: set[int], under: list[vtk.vtkRenderer]) -> None:
         self.mode = mode
         self._live_ids = live_ids
         if mode == PLAIN:
@@ -118,7 +118,7 @@ class FrameReuse:
         self.main.SetDraw(mode != REUSE)
         # Renderers between the main one and the live one (the orientation axes) are in
         # the picture too; their state is checked after each frame (_after_frame).
-        for renderer in self._under():
+        for renderer in under:
             renderer.SetDraw(mode != REUSE)
         self.live.SetActiveCamera(self.main.GetActiveCamera())
         _copy_renderer_settings(self.main, self.live)
@@ -153,7 +153,7 @@ class FrameReuse:
                 self.counts[CAPTURE] -= 1
                 self.counts[PLAIN] += 1
         elif self.mode == REUSE and not self._copy(to_cache=False):
-            self._valid = False  # cannot happen while the view is the same; never again
+            self._valid = False  # the window lost its framebuffer: the next frame in full
 
     def _after_frame(self, *_: Any) -> None:
         for prop in self._hidden:
