@@ -47,8 +47,9 @@ class FrameReuse:
     between the main renderer and any overlay above it. Call `begin_frame` at the start
     of every frame (the render window's StartEvent, after the camera is final) and
     nothing else; `counts` says how many frames each way went, and `enabled` False draws
-    every frame in full. With FXAA, multisampling or a custom render pass (a GPU's
-    settings) every frame is drawn in full too: the copy would not reproduce them."""
+    every frame in full (keeping the picture while nothing in it changes). With FXAA,
+    multisampling or a custom render pass (a GPU's settings) every frame is drawn in full
+    too: the copy would not reproduce them."""
 
     def __init__(self, render_window: Any, main: vtk.vtkRenderer, layer: int) -> None:
         self.window = render_window
@@ -70,6 +71,7 @@ class FrameReuse:
         self._view: tuple = ()
         self._props: list[Any] = []
         self._stamps: dict[int, int] = {}  # id(prop) -> its redraw time after the last frame
+        self._shown: set[int] = set()  # ids of the props visible in the last frame
         self._under_state: tuple = ()
         self._live_ids: set[int] = set()
         self._stand_ins: dict[int, vtk.vtkActor] = {}  # id(original) -> stand-in
@@ -84,9 +86,11 @@ class FrameReuse:
         """Decide how this frame is drawn; hide what the main renderer must not draw."""
         props = self._props = _props(self.main)  # kept: ids stay those of live wrappers
         view = self._view_state(props)
-        stamps = {id(p): p.GetRedrawMTime() for p in props}
-        changed = {i for i, t in stamps.items() if self._stamps.get(i) != t}
         visible = [p for p in props if p.GetVisibility()]
+        # What changed and is, or was, in the picture (hidden before and now: nothing).
+        seen = {id(p) for p in visible} | self._shown
+        changed = {id(p) for p in props
+                   if self._stamps.get(id(p)) != p.GetRedrawMTime() and id(p) in seen}
         opaque = [p for p in visible if _opaque_actor(p)]
         under = self._under()
         same_view = view == self._view and _drawn_state(under) == self._under_state
@@ -97,27 +101,38 @@ class FrameReuse:
         live_opaque = (changed | self._live_ids) & opaque_ids
         if 2 * len(live_opaque) > len(opaque_ids):
             live_opaque = changed & opaque_ids
-        if not (self.enabled and same_view and self._usable()):
+        if not (same_view and self._usable()):
+            self._forget()
+            self._set_mode(PLAIN, set(), props, changed, under)
+        elif not self.enabled:
+            # In full, keeping the picture while nothing in it changes.
+            if not changed <= self._live_ids:
+                self._forget()
             self._set_mode(PLAIN, set(), props, changed, under)
         elif self._valid and self._cache is not None and changed <= self._live_ids:
             self._set_mode(REUSE, self._live_ids, props, changed, under)
         elif changed and 2 * len(live_opaque) <= len(opaque_ids):
             # Live: the changed opaque actors, and all that is not opaque.
-            self._set_mode(CAPTURE, {id(p) for p in visible} - (opaque_ids - live_opaque),
-                           props, changed, under)
+            self._live_ids = {id(p) for p in visible} - (opaque_ids - live_opaque)
+            self._set_mode(CAPTURE, self._live_ids, props, changed, under)
         else:
+            self._forget()
             self._set_mode(PLAIN, set(), props, changed, under)
         self.counts[self.mode] += 1
 
+    def _forget(self) -> None:
+        """The picture no longer shows the scene: take a new one when next possible."""
+        self._valid = False
+        self._live_ids = set()
+
     def _set_mode(self, mode: str, live_ids: set[int], props: list[Any],
                   changed: set[int], under: list[vtk.vtkRenderer]) -> None:
+        """Draw this frame as `mode`, the props `live_ids` by their stand-ins."""
         self.mode = mode
-        self._live_ids = live_ids
-        if mode == PLAIN:
-            self._valid = False
         self.main.SetDraw(mode != REUSE)
         # Renderers between the main one and the live one (the orientation axes) are in
-        # the picture too; their state is checked after each frame (_after_frame).
+        # the picture too; what they show is compared after each frame (_after_frame),
+        # and they are assumed to change with nothing else (_drawn_state).
         for renderer in under:
             renderer.SetDraw(mode != REUSE)
         self.live.SetActiveCamera(self.main.GetActiveCamera())
@@ -165,7 +180,9 @@ class FrameReuse:
             renderer.SetDraw(True)
         # After the visibility toggles, so that only later edits count as changes; and
         # after the frame, which may have moved the axes' camera along with the main one.
-        self._stamps = {id(p): p.GetRedrawMTime() for p in _props(self.main)}
+        props = _props(self.main)
+        self._stamps = {id(p): p.GetRedrawMTime() for p in props}
+        self._shown = {id(p) for p in props if p.GetVisibility()}
         self._under_state = _drawn_state(under)
 
     def _under(self) -> list[vtk.vtkRenderer]:
@@ -241,15 +258,17 @@ class FrameReuse:
 
 
 def _drawn_state(renderers: list[vtk.vtkRenderer]) -> tuple:
-    """What decides the pictures of `renderers`: viewport, camera, props and their times.
-    (By address: nothing may hold these Python wrappers, so their ids can change.)"""
+    """What decides the pictures of `renderers` (the orientation axes' corner): viewport,
+    camera, and which props are shown. Not the props' modification times: vtkAxesActor
+    modifies itself whenever it is drawn, with nothing new to show. (By address: nothing
+    may hold these Python wrappers, so their ids can change.)"""
     state = []
     for r in renderers:
         c = r.GetActiveCamera()
         state.append((r.GetAddressAsString("vtkObject"), r.GetLayer(), tuple(r.GetViewport()),
                       c.GetPosition(), c.GetFocalPoint(), c.GetViewUp(),
                       c.GetParallelScale(), c.GetClippingRange(),
-                      tuple((p.GetAddressAsString("vtkObject"), p.GetRedrawMTime())
+                      tuple((p.GetAddressAsString("vtkObject"), p.GetVisibility())
                             for p in _props(r))))
     return tuple(state)
 

@@ -142,6 +142,11 @@ def test_changes_outside_the_live_set_and_view_changes_are_drawn_in_full(qtbot,
         return frames.after(qtbot, lambda: scene.drag_control_point(
             0, 1, cps[1] + np.array([0.0, 0.0, dz])))
 
+    def edit_second(dz: float) -> str:
+        cps = doc.primitive(1).control_points
+        return frames.after(qtbot, lambda: scene.drag_control_point(
+            1, 1, cps[1] + np.array([0.0, 0.0, dz])))
+
     assert [edit_first(0.01 * k) for k in range(1, 4)] == [CAPTURE, REUSE, REUSE]
     assert_same_picture(window)
 
@@ -151,13 +156,25 @@ def test_changes_outside_the_live_set_and_view_changes_are_drawn_in_full(qtbot,
             set_field(doc, 3, "color", color, merge=False)))
 
     assert colour_fourth("#ff00ff") == CAPTURE
-    # The first primitive joins the fourth among those drawn live, and then edits of
+    # The first primitive stays among those drawn live, with the fourth now: edits of
     # either reuse the picture.
-    assert edit_first(0.04) == CAPTURE
-    assert [edit_first(0.05), colour_fourth("#00ffff"), edit_first(0.06)] == [REUSE] * 3
+    assert [edit_first(0.04), colour_fourth("#00ffff"), edit_first(0.05)] == [REUSE] * 3
     # Hiding a live primitive needs no new picture either; it is gone from the frame.
     assert frames.after(qtbot, lambda: window._push(
         set_field(doc, 0, "visible", False, merge=False))) == REUSE
+    assert_same_picture(window)
+    # Hiding a primitive kept in the picture takes a new one; edits of a hidden primitive
+    # change nothing in it.
+    assert frames.after(qtbot, lambda: window._push(
+        set_field(doc, 2, "visible", False, merge=False))) == CAPTURE
+    assert_same_picture(window)
+    assert edit_first(0.06) == REUSE
+    cps = doc.primitive(2).control_points
+    assert frames.after(qtbot, lambda: scene.drag_control_point(
+        2, 1, cps[1] + np.array([0.0, 0.0, 0.05]))) == REUSE
+    assert_same_picture(window)
+    assert frames.after(qtbot, lambda: window._push(
+        set_field(doc, 2, "visible", True, merge=False))) == CAPTURE
     assert_same_picture(window)
     # The target made opaque, and the camera turned: drawn in full or anew, as plain.
     window.scene.set_shape_opacity(1.0)
@@ -166,7 +183,7 @@ def test_changes_outside_the_live_set_and_view_changes_are_drawn_in_full(qtbot,
     camera = window.plotter.renderer.GetActiveCamera()
     assert frames.after(qtbot, lambda: (camera.Azimuth(20), scene.request_render())) == PLAIN
     assert_same_picture(window)
-    assert edit_first(0.07) == CAPTURE
+    assert edit_second(0.01) == CAPTURE
     light = window.plotter.renderer.GetLights().GetItemAsObject(0)
     assert frames.after(qtbot, lambda: (light.SetIntensity(0.6), scene.request_render())) \
         == PLAIN
@@ -174,10 +191,18 @@ def test_changes_outside_the_live_set_and_view_changes_are_drawn_in_full(qtbot,
     # The orientation axes (a renderer of their own under the live layer, kept in the
     # picture): a change there alone makes the next frame draw in full.
     axes = window.plotter.renderer.axes_actor
-    assert edit_first(0.08) == CAPTURE
-    assert frames.after(qtbot, lambda: (axes.SetTotalLength(2.0, 0.5, 1.0),
-                                        scene.request_render())) == PLAIN
-    assert_same_picture(window)
+    assert edit_second(0.02) == CAPTURE
+    for visible in (False, True):
+        assert frames.after(qtbot, lambda v=visible: (axes.SetVisibility(v),
+                                                      scene.request_render())) == PLAIN
+        assert_same_picture(window)
+    # A change in the picture first drawn by a full frame (reuse off) is not forgotten
+    # when reuse is back on.
+    assert [edit_second(0.03), edit_second(0.04)] == [CAPTURE, REUSE]
+    window._push(set_field(doc, 2, "color", "#123456", merge=False))
+    want = plain(window)
+    assert frames.after(qtbot, scene.request_render) != REUSE
+    assert np.array_equal(shown(window), want)
     frames.close()
 
 
@@ -229,3 +254,59 @@ def test_pyvistaqts_view_reuses_the_picture_too(qtbot, no_native_window, window,
     assert modes[-2:] == [REUSE, REUSE], modes
     assert_same_picture(window)
     frames.close()
+
+
+def test_every_frame_of_a_random_editing_session_is_the_plain_frame(qtbot, tubes) -> None:
+    """Drags (most steps, as in use) mixed with every other kind of change the view
+    shows; after each step the frame is compared with the plain one."""
+    from sweepedit.app.commands import DeletePrimitive, duplicate_primitive
+
+    window, scene, doc, stack = tubes, tubes.scene, tubes.doc, tubes.stack
+    camera = window.plotter.renderer.GetActiveCamera()
+    rng = np.random.default_rng(27)
+
+    def pick() -> int:
+        return int(rng.integers(len(doc)))
+
+    def drag() -> None:
+        i = int(rng.choice([0, 0, 0, pick()]))  # mostly one primitive, as a drag does
+        cp = int(rng.integers(3))
+        scene.drag_control_point(i, cp, doc.primitive(i).control_points[cp]
+                                 + rng.normal(size=3) * 0.015)
+
+    def field(name: str, value) -> None:
+        window._push(set_field(doc, pick(), name, value, merge=False))
+
+    actions = {
+        "drag": (0.45, drag),
+        "end drag": (0.05, scene.end_drag),
+        "colour": (0.05, lambda: field("color", f"#{int(rng.integers(1 << 24)):06x}")),
+        "visible": (0.04, lambda: field("visible", bool(rng.integers(2)))),
+        "profile": (0.05, lambda: field("a", float(rng.uniform(0.04, 0.08)))),
+        "select": (0.05, lambda: doc.select(int(rng.integers(-1, len(doc))) % (len(doc) + 1)
+                                            if rng.integers(4) else None)),
+        "camera": (0.05, lambda: camera.Azimuth(float(rng.uniform(-8.0, 8.0)))),
+        "target opacity": (0.04, lambda: scene.set_shape_opacity(
+            float(rng.choice([0.3, 0.6, 1.0])))),
+        "duplicate": (0.03, lambda: window._push(duplicate_primitive(doc, pick()))),
+        "delete": (0.03, lambda: window._push(DeletePrimitive(pick())) if len(doc) > 3
+                   else None),
+        "undo": (0.04, lambda: stack.undo() if stack.can_undo else None),
+        "heat map": (0.04, lambda: window.heatmap.set_visible(not window.heatmap.visible)),
+        "events": (0.08, lambda: qtbot.wait(80)),  # heat map results arrive, etc.
+    }
+    names = list(actions)
+    weights = np.array([actions[n][0] for n in names])
+    modes, done = [], []
+    for _ in range(90):
+        name = str(rng.choice(names, p=weights / weights.sum()))
+        actions[name][1]()
+        done.append(name)
+        scene.render_now()
+        modes.append(scene.frame_reuse.mode)
+        got = shown(window)
+        want = plain(window)
+        differ = np.any(got != want, axis=-1)
+        assert not differ.any(), (f"after {done[-3:]}: {int(differ.sum())} pixels differ "
+                                  f"from the plain frame ({modes[-1]})")
+    assert modes.count(REUSE) >= 20 and CAPTURE in modes and PLAIN in modes, modes
