@@ -58,3 +58,10 @@ def ant_window(app: Any, settings_name: str, preload_fit: bool = True) -> tuple[
     w.scene.reset_camera()
     w.doc.select(0)
     return w, shape
+
+
+def close_window(app: Any, window: Any) -> None:
+    """Close a benchmark's window without the unsaved-edits question, and let Qt finish."""
+    window.doc.set_dirty(False)
+    window.close()
+    app.processEvents()

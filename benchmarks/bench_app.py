@@ -37,7 +37,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from ant_window import SHAPE, SHARED, ant_window, spin
+from ant_window import SHAPE, SHARED, ant_window, close_window, spin
 
 OPEN_SHAPE = SHARED / "shapes" / "elephant.off"
 SHAPE_SUFFIXES = {".obj", ".ply", ".stl", ".off", ".glb", ".gltf"}
@@ -291,9 +291,7 @@ def main() -> int:
     open_ms = np.array(open_gaps) * 1e3
     print(f"4. open {OPEN_SHAPE.name}: {open_s:.2f} s; max event-loop gap meanwhile "
           f"{open_ms.max():.0f} ms, p99 {np.percentile(open_ms, 99):.0f} ms")
-    w.doc.set_dirty(False)
-    w.close()
-    app.processEvents()
+    close_window(app, w)
     return 0
 
 

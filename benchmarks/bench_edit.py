@@ -36,7 +36,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-from ant_window import SHAPE, SHARED, ant_window
+from ant_window import SHAPE, SHARED, ant_window, close_window
 from ant_window import spin as spin_every
 
 HEAT_SHAPE = SHARED / "shapes" / "eight.stl"
@@ -255,9 +255,7 @@ def main() -> int:
         job.append(view.last_seconds)
     print(f"   in the app, edit -> map recoloured (includes the {60} ms pause): {ms(in_app)}; "
           f"the worker's computation: {ms(job)}")
-    w.doc.set_dirty(False)
-    w.close()
-    app.processEvents()
+    close_window(app, w)
     return 0
 
 

@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from ant_window import PARAMS, SHAPE, ant_window
+from ant_window import PARAMS, SHAPE, ant_window, close_window
 
 PYTHON_DEFAULT_S = 0.005
 
@@ -103,9 +103,7 @@ def main() -> int:
                 dragged = median_ms(drag, args.repeats)
                 previewed = median_ms(preview, max(3, args.repeats // 3))
             print(f"{interval * 1e3:>13.1f} ms {burners:>15} {dragged:>14.1f} {previewed:>17.1f}")
-    window.doc.set_dirty(False)
-    window.close()
-    app.processEvents()
+    close_window(app, window)
     return 0
 
 

@@ -232,11 +232,8 @@ class FrameReuse:
 
     def _view_state(self, props: list[Any]) -> tuple:
         """What, when it changes, makes the picture stale whatever the actors do."""
-        c = self.main.GetActiveCamera()
         return (tuple(self.window.GetSize()), tuple(self.main.GetViewport()),
-                tuple(self.main.GetBackground()), c.GetPosition(), c.GetFocalPoint(),
-                c.GetViewUp(), c.GetViewAngle(), c.GetParallelProjection(),
-                c.GetParallelScale(), c.GetClippingRange(), c.GetWindowCenter(),
+                tuple(self.main.GetBackground()), _camera_state(self.main.GetActiveCamera()),
                 tuple(light.GetMTime() for light in _items(self.main.GetLights())),
                 tuple(id(p) for p in props))
 
@@ -264,13 +261,18 @@ def _drawn_state(renderers: list[vtk.vtkRenderer]) -> tuple:
     may hold these Python wrappers, so their ids can change.)"""
     state = []
     for r in renderers:
-        c = r.GetActiveCamera()
         state.append((r.GetAddressAsString("vtkObject"), r.GetLayer(), tuple(r.GetViewport()),
-                      c.GetPosition(), c.GetFocalPoint(), c.GetViewUp(),
-                      c.GetParallelScale(), c.GetClippingRange(),
+                      _camera_state(r.GetActiveCamera()),
                       tuple((p.GetAddressAsString("vtkObject"), p.GetVisibility())
                             for p in _props(r))))
     return tuple(state)
+
+
+def _camera_state(c: vtk.vtkCamera) -> tuple:
+    """Everything of a camera that decides where things land on screen, and at what depth."""
+    return (c.GetPosition(), c.GetFocalPoint(), c.GetViewUp(), c.GetViewAngle(),
+            c.GetParallelProjection(), c.GetParallelScale(), c.GetClippingRange(),
+            c.GetWindowCenter())
 
 
 def _items(collection: vtk.vtkCollection) -> list[Any]:

@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from gui_helpers import move, open_box, qpoint
+from pyvista.plotting.utilities import image_from_window
 
 from sweepedit.app.commands import set_field
 from sweepedit.app.frame_reuse import CAPTURE, PLAIN, REUSE
-from sweepedit.app.view3d import frame_image
 from sweepedit.geometry.model import Abstraction, SweepPrimitive, palette_color
 
 pytestmark = pytest.mark.gui
@@ -60,12 +60,8 @@ class Frames:
 
 
 def shown(window) -> np.ndarray:
-    """(h, w, 3) the last frame, as the window shows it."""
-    image = frame_image(window.plotter.render_window)
-    bits = image.constBits()
-    rows = np.frombuffer(bits, np.uint8, image.sizeInBytes()).reshape(
-        image.height(), image.bytesPerLine())
-    return rows[:, : 3 * image.width()].reshape(image.height(), image.width(), 3).copy()
+    """(h, w, 3) the last frame, as the window shows it (what view3d.frame_image reads)."""
+    return np.array(image_from_window(window.plotter.render_window, ignore_alpha=True))
 
 
 def plain(window) -> np.ndarray:
