@@ -357,6 +357,33 @@ def test_the_inside_kernel_holds_the_frames_and_profile_level_of_the_sweep_math(
     assert turned > 10  # tangents beyond pi/2 from their segment's start were checked
 
 
+def test_the_inside_kernel_holds_the_segment_start_frames_of_the_sweep_math() -> None:
+    # inside_kernel.segment_start_frames writes sweep.segment_frames out for one axis:
+    # the same tangents, frames, normals and planar flags on curved axes of several
+    # segments, a cusp (a vanishing first leg), a hairpin, an exact fold back, axes
+    # along z and within 1e-7 of it (the initial frame's fixed W) and a straight one.
+    from sweepedit.geometry.inside_kernel import segment_start_frames
+    from sweepedit.geometry.sweep import bezier_segments, segment_frames
+
+    rng = np.random.default_rng(9)
+    axes = [rng.normal(0.0, 0.2, (n, 3)) for n in (3, 4, 6, 8, 8)]
+    axes.append(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.1, 0.0]]))  # cusp
+    axes.append(np.array([[0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.5, 1e-6, 0.0],
+                          [0.2, 0.3, 0.1]]))  # hairpin, then on
+    axes.append(np.array([[0.0, 0.0, 0.0], [0.5, 0.375, 0.0], [0.0, 0.0, 0.0]]))  # exact fold
+    axes.append(np.array([[0.0, 0.0, -0.4], [0.0, 0.0, 0.0], [0.0, 0.0, 0.2],
+                          [0.0, 0.0, 0.4]]))  # straight along z
+    axes.append(np.array([[0.0, 0.0, -0.4], [0.0, 1e-8, 0.0], [0.0, 0.0, 0.4]]))  # nearly
+    axes.append(np.array([[-0.3, 0.1, 0.0], [0.0, 0.2, 0.1], [0.3, 0.3, 0.2]]))  # straight
+    for cps in axes:
+        expected = np.concatenate([np.asarray(a[0], dtype=np.float64)
+                                   for a in segment_frames(cps[None])], axis=1)
+        p0, p1, p2 = (np.ascontiguousarray(a[0]) for a in bezier_segments(cps[None]))
+        got = np.full_like(expected, np.nan)
+        segment_start_frames(p0, p1, p2, got)
+        np.testing.assert_allclose(got, expected, rtol=0.0, atol=1e-12)
+
+
 def test_the_inside_test_wants_points_as_rows_of_three() -> None:
     p = SweepPrimitive([[0, 0, -0.3], [0, 0, 0], [0, 0, 0.3]], a=0.2, b=0.1, degree=2.0)
     with pytest.raises(ValueError, match=r"\(N, 3\)"):

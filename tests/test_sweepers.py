@@ -169,6 +169,39 @@ def test_fused_kernels_match_torch_ops():
     torch.testing.assert_close(gq_fused, gq_ops, rtol=2e-3, atol=2e-3 * float(gq_ops.abs().max()))
 
 
+def test_fused_station_table_matches_torch_ops_for_longer_axes_and_scaling():
+    """The station table of the fused path (compiled loop, central differences for the
+    control points) against the torch ops' table and autograd's gradients, for axes of
+    4 to 8 control points and scaling of degree 3 to 4, with axes straight along z and
+    two equal control points among them (degenerate branches of the frames)."""
+    from sweepedit.fitting.params import ParamLayout
+
+    gen = torch.Generator().manual_seed(11)
+    for n, k in ((4, 3), (6, 4), (8, 3)):
+        layout = ParamLayout(n, k)
+        params = torch.rand(6, layout.size, generator=gen, dtype=torch.float64)
+        params[:, : 3 * n] = params[:, : 3 * n] * 0.8 - 0.4
+        params[:, 3 * n : 3 * n + 2] = 0.03 + 0.2 * params[:, 3 * n : 3 * n + 2]
+        params[:, 3 * n + 2] = 0.4 + 4.0 * params[:, 3 * n + 2]
+        params[:, 3 * n + 3 :] = 0.3 * (params[:, 3 * n + 3 :] - 0.5)
+        params[0, : 3 * n] = torch.stack([torch.zeros(n), torch.zeros(n),
+                                          torch.linspace(-0.4, 0.4, n, dtype=torch.float64)],
+                                         dim=1).reshape(-1)  # straight along z
+        params[1, 3:6] = params[1, 0:3]  # c1 = c2
+        weights = torch.rand(6, 49, 32, generator=gen, dtype=torch.float64)
+        tables, grads = [], []
+        for fused in (True, False):
+            sweeper = AnalyticSweeper(sharpness=200.0, fused=fused, layout=layout)
+            p = params.clone()[None].requires_grad_(True)
+            table = sweeper._stations(p)["table"]
+            (table * weights).sum().backward()
+            tables.append(table.detach())
+            grads.append(p.grad)
+        torch.testing.assert_close(tables[0], tables[1], rtol=0.0, atol=1e-12)
+        torch.testing.assert_close(grads[0], grads[1], rtol=1e-5,
+                                   atol=1e-5 * float(grads[1].abs().max()))
+
+
 def test_fused_bracket_search_reports_overflow():
     """With too little room the bracket search writes what fits and says how many there
     are, so that the caller asks again (every bracket found, the first ones the same)."""

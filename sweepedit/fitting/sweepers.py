@@ -169,14 +169,41 @@ class AnalyticSweeper(Sweeper):
         B, K, _ = params.shape
         layout = self.layout_for(params)
         cps, profile, scaling = layout.split(params.reshape(B * K, -1))
-        N, S = B * K, self.stations
-        t = torch.linspace(0.0, 1.0, S, dtype=params.dtype, device=params.device)
+        S = self.stations
+        margin = self._margin()
+        if self._fused_for(params):
+            from sweepedit.fitting.station_kernels import FusedStations
+
+            t_np = np.linspace(0.0, 1.0, S)
+            table, pts, tangents = FusedStations.apply(cps, profile, scaling, t_np, margin)
+            f = table[:, :, 24].detach()
+        else:
+            table, pts, tangents, f = self._station_table(cps, profile, scaling, margin)
+        with torch.no_grad():
+            pts, f, profile = pts.detach(), f.detach(), profile.detach()
+            seg = torch.sqrt(((pts[:, 2:-1] - pts[:, 1:-2]) ** 2).sum(-1) + _EPS ** 2)
+            radius = f.abs().amax(dim=1) * torch.sqrt(profile[:, 0] ** 2 + profile[:, 1] ** 2)
+            pad = radius + seg.amax(dim=1) + 12.0 / self.sharpness
+            # Coarse stations (every 4th, both ends included) for a cheap distance cull: a
+            # query farther than `reach` from all of them has occupancy < sigmoid(-12).
+            coarse = torch.cat([pts[:, :-1:4], pts[:, -1:]], dim=1)
+            coarse_gap = torch.sqrt(((coarse[:, 1:] - coarse[:, :-1]) ** 2).sum(-1)).amax(dim=1)
+        return {"table": table, "points": pts, "tangents": tangents,
+                "box_lo": pts.amin(dim=1) - pad[:, None], "box_hi": pts.amax(dim=1) + pad[:, None],
+                "coarse": coarse, "reach": pad + coarse_gap}
+
+    def _station_table(self, cps: torch.Tensor, profile: torch.Tensor, scaling: torch.Tensor,
+                       margin: float) -> tuple[torch.Tensor, ...]:
+        """_stations' table (N, S + 1, 32) as torch operations (any device), with the
+        extended stations' points and tangents (N, S + 2, 3) and f at the stations
+        (N, S)."""
+        N, S = cps.shape[0], self.stations
+        t = torch.linspace(0.0, 1.0, S, dtype=cps.dtype, device=cps.device)
         fr = axis_frames(cps, t)  # each (N, S, 3)
         f = scaling_factor(scaling, t)  # (N, S)
         seg = torch.sqrt(((fr.points[:, 1:] - fr.points[:, :-1]) ** 2).sum(-1) + _EPS ** 2)
         arc = torch.cat([torch.zeros_like(seg[:, :1]), torch.cumsum(seg, dim=1)], dim=1)
         total = arc[:, -1]
-        margin = self._margin()
         pts = torch.cat([fr.points[:, :1] - margin * fr.T[:, :1], fr.points,
                          fr.points[:, -1:] + margin * fr.T[:, -1:]], dim=1)  # (N, S+2, 3)
 
@@ -193,15 +220,7 @@ class AnalyticSweeper(Sweeper):
         table = torch.cat([affine.flatten(2),
                            torch.stack([fe[:, :-1], fe[:, 1:], arc[:, :-1], arc[:, 1:]], -1),
                            per_prim], dim=-1)
-        radius = f.abs().amax(dim=1) * torch.sqrt(profile[:, 0] ** 2 + profile[:, 1] ** 2)
-        pad = radius + seg.amax(dim=1) + 12.0 / self.sharpness
-        # Coarse stations (every 4th, both ends included) for a cheap distance cull: a
-        # query farther than `reach` from all of them has occupancy < sigmoid(-12).
-        coarse = torch.cat([pts[:, :-1:4], pts[:, -1:]], dim=1)
-        coarse_gap = torch.sqrt(((coarse[:, 1:] - coarse[:, :-1]) ** 2).sum(-1)).amax(dim=1)
-        return {"table": table, "points": pts, "tangents": ext(fr.T),
-                "box_lo": pts.amin(dim=1) - pad[:, None], "box_hi": pts.amax(dim=1) + pad[:, None],
-                "coarse": coarse, "reach": pad + coarse_gap}
+        return table, pts, ext(fr.T), f
 
     @torch.no_grad()
     def _brackets(self, q: torch.Tensor, st: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:

@@ -134,6 +134,61 @@ def _frame_at(start: np.ndarray, j: int, bx: float, by: float, bz: float
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _unit_tangent(ax: float, ay: float, az: float, bx: float, by: float, bz: float,
+                  cx: float, cy: float, cz: float) -> tuple[float, float, float]:
+    """sweep._segment_tangent of the candidates a, b, c: the first whose square length
+    is at least 1e-18, normalised as sweep._normalize does (by at least 1e-9)."""
+    vx, vy, vz = ax, ay, az
+    if vx * vx + vy * vy + vz * vz < 1e-18:
+        vx, vy, vz = bx, by, bz
+        if vx * vx + vy * vy + vz * vz < 1e-18:
+            vx, vy, vz = cx, cy, cz
+    norm = math.sqrt(max(vx * vx + vy * vy + vz * vz, 1e-18))
+    return vx / norm, vy / norm, vz / norm
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def segment_start_frames(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray,
+                         start: np.ndarray) -> None:
+    """sweep.segment_frames of one axis, Bezier segments p0, p1, p2 (m, 3), written to
+    start (m, 13) as _frame_at reads it: per segment its start tangent, U, V, the unit
+    normal of its plane and planar (1.0 or 0.0). The initial frame is sweep.initial_frame's
+    and each segment's frame is the previous one turned to its start tangent (_frame_at)."""
+    eps64 = (64.0 * 2.220446049250313e-16) ** 2
+    end_x = end_y = end_z = 0.0
+    for j in range(p0.shape[0]):
+        d0x, d0y, d0z = p1[j, 0] - p0[j, 0], p1[j, 1] - p0[j, 1], p1[j, 2] - p0[j, 2]
+        d1x, d1y, d1z = p2[j, 0] - p1[j, 0], p2[j, 1] - p1[j, 1], p2[j, 2] - p1[j, 2]
+        cx, cy, cz = p2[j, 0] - p0[j, 0], p2[j, 1] - p0[j, 1], p2[j, 2] - p0[j, 2]
+        ax, ay, az = _unit_tangent(d0x, d0y, d0z, cx, cy, cz, d1x, d1y, d1z)
+        # sweep._segment_binormal: n = d0 x chord, planar unless the legs are collinear
+        # to rounding.
+        nx, ny, nz = d0y * cz - d0z * cy, d0z * cx - d0x * cz, d0x * cy - d0y * cx
+        nn = nx * nx + ny * ny + nz * nz
+        planar = nn > eps64 * (d0x * d0x + d0y * d0y + d0z * d0z) * (
+            d1x * d1x + d1y * d1y + d1z * d1z)
+        scale = math.sqrt(nn) if planar else 1.0
+        start[j, 0], start[j, 1], start[j, 2] = ax, ay, az
+        start[j, 9], start[j, 10], start[j, 11] = nx / scale, ny / scale, nz / scale
+        start[j, 12] = 1.0 if planar else 0.0
+        if j == 0:
+            # sweep.initial_frame: W = (-T.y, T.x, 0), or (0, 1, 0) where that vanishes;
+            # V = normalize(T x W), U = V x T.
+            wx, wy, wz = -ay, ax, 0.0
+            if wx * wx + wy * wy < 1e-12:
+                wx, wy, wz = 0.0, 1.0, 0.0
+            vx, vy, vz = ay * wz - az * wy, az * wx - ax * wz, ax * wy - ay * wx
+            norm = math.sqrt(max(vx * vx + vy * vy + vz * vz, 1e-18))
+            vx, vy, vz = vx / norm, vy / norm, vz / norm
+            ux, uy, uz = vy * az - vz * ay, vz * ax - vx * az, vx * ay - vy * ax
+        else:
+            ux, uy, uz, vx, vy, vz = _frame_at(start, j - 1, end_x, end_y, end_z)
+        start[j, 3], start[j, 4], start[j, 5] = ux, uy, uz
+        start[j, 6], start[j, 7], start[j, 8] = vx, vy, vz
+        end_x, end_y, end_z = _unit_tangent(d1x, d1y, d1z, cx, cy, cz, -d0x, -d0y, -d0z)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _profile_level_at(px: float, py: float, pz: float, p0: np.ndarray, p1: np.ndarray,
                       p2: np.ndarray, start: np.ndarray, scaling: np.ndarray,
                       profile: np.ndarray, t: float) -> float:
