@@ -25,8 +25,8 @@ MANIFEST_NAME = "manifest.json"
 
 # Licence identifiers a manifest may use (SPDX where one exists): each allows copying
 # the file with the project, given the attribution the manifest records.
-ALLOWED_LICENCES = frozenset({"CC0-1.0", "public-domain", "MIT", "CC-BY-3.0", "CC-BY-4.0",
-                              "Bitstream-Vera"})
+ALLOWED_LICENCES = frozenset({"CC0-1.0", "public-domain", "MIT", "BSD-2-Clause",
+                              "BSD-3-Clause", "CC-BY-3.0", "CC-BY-4.0", "Bitstream-Vera"})
 _REQUIRED = ("name", "file", "source", "original", "licence", "attribution")
 
 
