@@ -16,7 +16,8 @@ from sweepedit.fitting.losses import (
     parsimony_loss,
     reconstruction_loss,
 )
-from sweepedit.fitting.warmstart import bspline_basis, fit_axis, warm_start_primitives
+from sweepedit.fitting.warmstart import fit_axis, warm_start_primitives
+from sweepedit.geometry.axis_edit import bspline_basis
 from sweepedit.geometry.sweep import axis_points
 
 

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from sweepedit.geometry.axis_edit import fit_control_points
 from sweepedit.geometry.model import (
     A_RANGE,
     SCALING_RANGE,
@@ -33,26 +34,12 @@ def _arc_length(points: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
 
-def bspline_basis(n_control_points: int, t: np.ndarray) -> np.ndarray:
-    """Basis matrix (M, n) of the clamped quadratic B-spline at t (M,).
-
-    The axis is linear in its control points, so evaluating it on unit control points
-    gives the basis, with no second copy of the spline's definition.
-    """
-    eye = np.zeros((n_control_points, n_control_points, 3))
-    eye[np.arange(n_control_points), np.arange(n_control_points), 0] = 1.0
-    return axis_points(eye, t)[:, :, 0].T
-
-
 def fit_axis(points: np.ndarray, n_control_points: int) -> np.ndarray:
     """Least-squares control points (n, 3) of a B-spline through a polyline (M, 3),
     parameterised by arc length, with its ends pinned to the polyline's ends."""
     s = _arc_length(points)
     t = s / s[-1] if s[-1] > 0 else np.linspace(0.0, 1.0, len(points))
-    basis = bspline_basis(n_control_points, t)  # (M, n)
-    ends = np.outer(basis[:, 0], points[0]) + np.outer(basis[:, -1], points[-1])
-    inner, *_ = np.linalg.lstsq(basis[:, 1:-1], points - ends, rcond=None)
-    return np.vstack([points[0], inner, points[-1]])
+    return fit_control_points(points, t, n_control_points)
 
 
 def _radius_profile(radii: np.ndarray, t: np.ndarray, n_scaling: int) -> tuple[float, tuple]:

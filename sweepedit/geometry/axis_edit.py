@@ -127,7 +127,7 @@ def _arclength_fraction(points: np.ndarray) -> np.ndarray:
 
 # -- fitting a uniform spline to an axis ----------------------------------------------------
 
-def _fit_points(target: np.ndarray, params: np.ndarray, n: int,
+def fit_control_points(target: np.ndarray, params: np.ndarray, n: int,
                 tangents: np.ndarray | None = None, tangent_weight: float = 1.0) -> np.ndarray:
     """Least-squares control points (n, 3) of a spline through target (M, 3) at params
     (M,), the first and last control point fixed to the target's ends.
@@ -181,13 +181,13 @@ def fit_iterates(target: np.ndarray, n: int, params: np.ndarray,
     if len(u) != len(target):
         raise ValueError(f"params must hold one parameter per target point: {len(u)} for "
                          f"{len(target)}")
-    cp = _fit_points(target, u, n)
+    cp = fit_control_points(target, u, n)
     yield cp
     for _ in range(iterations):
         u = _project(cp, target, u)
         d1 = bspline_basis(n, u, 1) @ cp
         tangents = d1 / np.maximum(np.linalg.norm(d1, axis=1, keepdims=True), 1e-12)
-        cp = _fit_points(target, u, n, tangents, tangent_weight)
+        cp = fit_control_points(target, u, n, tangents, tangent_weight)
         yield cp
 
 
@@ -215,12 +215,21 @@ def refit_scaling(old_cp: np.ndarray, old_scaling: tuple[float, ...], new_cp: np
     frac_new = _arclength_fraction(axis_points(_check_points(new_cp)[None], t)[0])
     t_old = np.interp(frac_new, frac_old, t)
     f_old = scaling_factor(np.asarray(old_scaling, dtype=np.float64)[None], t_old)[0]
+    return fit_scaling(f_old, t, k)
+
+
+def fit_scaling(f: np.ndarray, t: np.ndarray, k: int) -> tuple[float, ...]:
+    """Least-squares s1..sk of f(t) = 1 + s1 t + ... + sk t^k through the values f (M,)
+    at t (M,), each coefficient kept in SCALING_RANGE (a coefficient that would leave it
+    is held at the bound and the others refitted)."""
+    if k == 0:
+        return ()
     powers = np.stack([t ** (i + 1) for i in range(k)], axis=1)  # (M, k)
     coef = np.zeros(k)
     free = np.ones(k, dtype=bool)
     lo, hi = SCALING_RANGE
     for _ in range(k):  # a small active set: at most k coefficients go to a bound
-        rhs = f_old - 1.0 - powers[:, ~free] @ coef[~free]
+        rhs = f - 1.0 - powers[:, ~free] @ coef[~free]
         coef[free] = np.linalg.lstsq(powers[:, free], rhs, rcond=None)[0]
         out = free & ((coef < lo) | (coef > hi))
         if not out.any():
@@ -291,7 +300,7 @@ def _keep_parameter(cp: np.ndarray, target: np.ndarray, s: np.ndarray, n: int,
     (samples target (M, 3) at s (M,)), when that stays within KEEP_PARAMETER of the axis
     length: then f(t) needs no change. Exact whenever the old axis lies in the new
     spline space, e.g. an axis that is one quadratic (every 3-point fit, after 3 -> 4)."""
-    new_cp = _fit_points(target, s, n)
+    new_cp = fit_control_points(target, s, n)
     return new_cp if axis_deviation(cp, new_cp) <= KEEP_PARAMETER * length else None
 
 
