@@ -171,7 +171,7 @@ def test_fused_kernels_match_torch_ops():
 
 def test_fused_station_table_matches_torch_ops_for_longer_axes_and_scaling():
     """The station table of the fused path (compiled loop, central differences for the
-    control points) against the torch ops' table and autograd's gradients, for axes of
+    control points) against the torch ops' table and bend and autograd's gradients, for axes of
     4 to 8 control points and scaling of degree 3 to 4, with axes straight along z and
     two equal control points among them (degenerate branches of the frames)."""
     from sweepedit.fitting.params import ParamLayout
@@ -189,15 +189,18 @@ def test_fused_station_table_matches_torch_ops_for_longer_axes_and_scaling():
                                          dim=1).reshape(-1)  # straight along z
         params[1, 3:6] = params[1, 0:3]  # c1 = c2
         weights = torch.rand(6, 49, 32, generator=gen, dtype=torch.float64)
-        tables, grads = [], []
+        bend_weights = torch.rand(6, 48, 2, generator=gen, dtype=torch.float64)
+        tables, bends, grads = [], [], []
         for fused in (True, False):
             sweeper = AnalyticSweeper(sharpness=200.0, fused=fused, layout=layout)
             p = params.clone()[None].requires_grad_(True)
-            table = sweeper._stations(p)["table"]
-            (table * weights).sum().backward()
-            tables.append(table.detach())
+            st = sweeper._stations(p)
+            ((st["table"] * weights).sum() + (st["bend"] * bend_weights).sum()).backward()
+            tables.append(st["table"].detach())
+            bends.append(st["bend"].detach())
             grads.append(p.grad)
         torch.testing.assert_close(tables[0], tables[1], rtol=0.0, atol=1e-12)
+        torch.testing.assert_close(bends[0], bends[1], rtol=1e-9, atol=1e-9)
         torch.testing.assert_close(grads[0], grads[1], rtol=1e-5,
                                    atol=1e-5 * float(grads[1].abs().max()))
 

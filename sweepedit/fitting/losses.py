@@ -10,6 +10,9 @@ from dataclasses import dataclass
 import torch
 
 BOLTZMANN_ALPHA = 40.0
+# How far a profile point may reach towards the centre of the axis's bend, as a share of
+# the bend's radius, before fold_loss counts it: a sweep folds onto itself at 1.
+FOLD_LIMIT = 0.9
 
 
 @dataclass(frozen=True)
@@ -79,3 +82,23 @@ def axis_chamfer_loss(skeleton: torch.Tensor, axes: torch.Tensor,
     per_axis = torch.min(d2, dim=0).values.reshape(K, S).mean(dim=1)  # (K,)
     to_skeleton = (per_axis * selection).sum() / (selection.sum() + 1e-6)
     return to_axes + to_skeleton
+
+
+def fold_loss(bend: torch.Tensor, scale: torch.Tensor, profile: torch.Tensor,
+              limit: float = FOLD_LIMIT) -> torch.Tensor:
+    """Mean squared excess of the sweeps' fold measure over `limit`.
+
+    bend (K, S, 2): the axes' curvature vector along U and V at S stations
+    (AnalyticSweeper.occupancy_and_bend); scale (K, S): f(t) there; profile (K, 3): a, b,
+    d. A profile point o moves along the axis at the rate 1 - f o.kN, so the sweep folds
+    onto itself where the profile's support in the direction of f kN -- (|a q_u|^p +
+    |b q_v|^p)^(1/p) for the superellipse of exponent d, p = d / (d - 1) -- passes 1
+    (docs/primitive.md, folding). Where it folds, the tube's surface turns inside out
+    and the solid grows fins, which no abstraction of a shape needs.
+    """
+    q = bend * scale[..., None]
+    a, b, d = (profile[:, i : i + 1] for i in range(3))
+    d = torch.clamp(d, min=1.1)
+    p = d / (d - 1.0)
+    reach = ((a * q[..., 0]).abs() + 1e-12) ** p + ((b * q[..., 1]).abs() + 1e-12) ** p
+    return torch.mean(torch.relu(reach ** (1.0 / p) - limit) ** 2)

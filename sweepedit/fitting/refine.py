@@ -57,12 +57,13 @@ from threadpoolctl import threadpool_limits
 
 from sweepedit.analysis.metrics import iou
 from sweepedit.analysis.skeleton import compute_skeleton
-from sweepedit.fitting.losses import boltzmann_union
+from sweepedit.fitting.losses import boltzmann_union, fold_loss
 from sweepedit.fitting.params import ParamLayout
 from sweepedit.fitting.sweepers import AnalyticSweeper
 from sweepedit.fitting.warmstart import warm_start_primitives
 from sweepedit.geometry.inside import T_SAMPLES, grid_points, inside_primitives, inside_union
 from sweepedit.geometry.model import SweepPrimitive
+from sweepedit.geometry.sweep import scaling_factor
 
 # How near (normalised units) a point of the union must be for a surface sample to count
 # as covered: within F1@0.05's threshold, so a limb must be followed, not just neared.
@@ -111,6 +112,9 @@ class RefineSettings:
     # Where the steps run: "cpu" or a torch device such as "cuda" (the exact scoring
     # stays on the CPU).
     device: str = "cpu"
+    # Weight of losses.fold_loss against the cross-entropy: keeps the axes from bending
+    # tighter than the profile's reach, where a sweep folds onto itself.
+    fold_weight: float = 0.0
 
     @property
     def total_steps(self) -> int:
@@ -454,7 +458,8 @@ def _optimise(prims: list[SweepPrimitive], layout: ParamLayout, points: ScoringP
             index = np.concatenate([index, points.n_cells
                                     + rng.integers(0, n_samples, settings.samples)])
         idx = torch.as_tensor(index, device=device)
-        loss = _step_loss(sweeper, layout, logits, all_points[idx], all_labels[idx], locked[idx])
+        loss = _step_loss(sweeper, layout, logits, all_points[idx], all_labels[idx], locked[idx],
+                          settings.fold_weight)
         logits.grad = None
         loss.backward()
         if bool(torch.isfinite(loss) & torch.isfinite(logits.grad).all()):
@@ -515,14 +520,23 @@ class Adam:
 
 
 def _step_loss(sweeper: AnalyticSweeper, layout: ParamLayout, logits: torch.Tensor,
-               queries: torch.Tensor, labels: torch.Tensor, locked: torch.Tensor) -> torch.Tensor:
-    """BCE of the soft union (locked primitives as a fixed member) at queries (Q, 3)."""
+               queries: torch.Tensor, labels: torch.Tensor, locked: torch.Tensor,
+               fold_weight: float = 0.0) -> torch.Tensor:
+    """BCE of the soft union (locked primitives as a fixed member) at queries (Q, 3),
+    plus fold_weight times the primitives' fold_loss."""
     params = layout.from_unconstrained(logits)  # (K, P)
-    occupancy = sweeper(params[None], queries[None])  # (1, K, Q)
+    occupancy, bend = sweeper.occupancy_and_bend(params[None], queries[None])  # (1, K, Q)
     occupancy = torch.cat([occupancy, locked[None, None]], dim=1)
     union = boltzmann_union(occupancy, torch.ones(1, occupancy.shape[1]))
     eps = 1e-5
-    return torch.nn.functional.binary_cross_entropy(union[0].clamp(eps, 1 - eps), labels)
+    loss = torch.nn.functional.binary_cross_entropy(union[0].clamp(eps, 1 - eps), labels)
+    if fold_weight:
+        _, profile, scaling = layout.split(params)
+        stations = torch.linspace(0.0, 1.0, bend.shape[2], dtype=params.dtype,
+                                  device=params.device)
+        loss = loss + fold_weight * fold_loss(bend[0], scaling_factor(scaling, stations),
+                                              profile)
+    return loss
 
 
 def _valid_primitives(layout: ParamLayout, logits: torch.Tensor,

@@ -35,10 +35,12 @@ from sweepedit.geometry.inside_kernel import _axis_at, _frame_at, segment_start_
 from sweepedit.geometry.sweep import bezier_segments
 
 # Columns of the geometric part that the kernel writes per bracket row: the affine map
-# (24), the arc length at both stations (2) and the total arc length (1).
-N_GEOMETRY = 27
+# (24), the arc length at both stations (2), the total arc length (1), and at row i < S
+# the axis's bend at station i (2: the curvature vector along U and V).
+N_GEOMETRY = 29
+BEND_COLUMNS = slice(27, 29)
 # Where those land in the sweeper's 32-column table.
-GEOMETRY_COLUMNS = np.array([*range(24), 26, 27, 31])
+GEOMETRY_COLUMNS = np.array([*range(24), 26, 27, 31])  # (the first 27 of the kernel's)
 # Central-difference step for the control points (normalised units; see above).
 STEP = 1e-10
 _EPS = 1e-9  # sweepers._EPS: keeps a zero-length segment's arc length finite
@@ -51,8 +53,9 @@ def station_geometry(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, t: np.ndarr
     """For each of E axes (Bezier segments p0, p1, p2 (E, m, 3)) at the stations t (S,):
     geometry (E, S + 1, N_GEOMETRY), per bracket [i, i + 1] of the stations extended by
     `margin` along the end tangents, the affine map that takes [q, 1] to (h, x, y) at
-    both its stations, their arc lengths and the axis's total arc length; points and
-    tangents (E, S + 2, 3) of the extended stations."""
+    both its stations, their arc lengths and the axis's total arc length, and the bend
+    at station i (sweep.axis_curvature_vectors' kN . U, kN . V; 0 in the last row);
+    points and tangents (E, S + 2, 3) of the extended stations."""
     n_axes, n_t = p0.shape[0], t.shape[0]
     m = p0.shape[1]
     frames = np.empty((n_t + 2, 9))  # T, U, V at each extended station
@@ -66,6 +69,8 @@ def station_geometry(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, t: np.ndarr
             j = int(min(max(math.floor(min(max(t[s], 0.0), 1.0) * m), 0.0), m - 1.0))
             ux, uy, uz, vx, vy, vz = _frame_at(start, j, tx, ty, tz)
             points[e, s + 1, 0], points[e, s + 1, 1], points[e, s + 1, 2] = px, py, pz
+            qu, qv = _bend_at(p0[e], p1[e], p2[e], j, t[s], ux, uy, uz, vx, vy, vz)
+            geometry[e, s, 27], geometry[e, s, 28] = qu, qv
             frames[s + 1, 0], frames[s + 1, 1], frames[s + 1, 2] = tx, ty, tz
             frames[s + 1, 3], frames[s + 1, 4], frames[s + 1, 5] = ux, uy, uz
             frames[s + 1, 6], frames[s + 1, 7], frames[s + 1, 8] = vx, vy, vz
@@ -101,6 +106,27 @@ def station_geometry(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, t: np.ndarr
             geometry[e, i, 24] = arc[i]
             geometry[e, i, 25] = arc[i + 1]
             geometry[e, i, 26] = length
+        geometry[e, n_t, 27] = geometry[e, n_t, 28] = 0.0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _bend_at(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, j: int, t: float, ux: float,
+             uy: float, uz: float, vx: float, vy: float, vz: float) -> tuple[float, float]:
+    """The curvature vector kN = (s'' - (s''.T) T) / |s'|^2 of the axis at t in its
+    segment j (sweep.axis_curvature_vectors), along U and along V."""
+    m = p0.shape[0]
+    u = min(max(t, 0.0), 1.0) * m - j
+    d1 = np.empty(3)
+    d2 = np.empty(3)
+    for c in range(3):
+        d1[c] = 2.0 * m * ((1.0 - u) * (p1[j, c] - p0[j, c]) + u * (p2[j, c] - p1[j, c]))
+        d2[c] = 2.0 * m * m * (p2[j, c] - 2.0 * p1[j, c] + p0[j, c])
+    speed2 = max(d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2], 1e-9)
+    along = (d2[0] * d1[0] + d2[1] * d1[1] + d2[2] * d1[2]) / speed2
+    k = np.empty(3)
+    for c in range(3):
+        k[c] = (d2[c] - d1[c] * along) / speed2
+    return (k[0] * ux + k[1] * uy + k[2] * uz, k[0] * vx + k[1] * vy + k[2] * vz)
 
 
 def _evaluate(control_points: np.ndarray, t: np.ndarray, margin: float
@@ -127,8 +153,8 @@ def scaling_at(scaling: np.ndarray, t: np.ndarray) -> np.ndarray:
 class FusedStations(torch.autograd.Function):
     """The table of AnalyticSweeper._stations (N, S + 1, 32) from control points
     (N, n, 3), profile (N, 3) and scaling (N, k) at the stations t (S,) with the
-    extension `margin`; also returns (not differentiable) the extended stations' points
-    and tangents (N, S + 2, 3)."""
+    extension `margin`, and the axes' bend at the stations (N, S, 2); also returns (not
+    differentiable) the extended stations' points and tangents (N, S + 2, 3)."""
 
     @staticmethod
     def forward(ctx: Any, control_points: torch.Tensor, profile: torch.Tensor,
@@ -148,7 +174,7 @@ class FusedStations(torch.autograd.Function):
         geometry = geometry.reshape(n_prims, 1 + 2 * n_vars, *geometry.shape[1:])
         f, powers = scaling_at(scaling.detach().to(torch.float64).numpy(), t)
         table = np.empty((n_prims, t.shape[0] + 1, 32))
-        table[..., GEOMETRY_COLUMNS] = geometry[:, 0]
+        table[..., GEOMETRY_COLUMNS] = geometry[:, 0, :, :27]
         table[..., 24], table[..., 25] = f[:, :-1], f[:, 1:]
         table[..., 28:31] = profile.detach().to(torch.float64).numpy()[:, None, :]
         # d(geometry)/d(coordinate): (N, n_vars, S + 1, N_GEOMETRY).
@@ -159,14 +185,21 @@ class FusedStations(torch.autograd.Function):
         ctx.shapes = (control_points.shape, control_points.dtype)
         base = slice(None, None, 1 + 2 * n_vars)
         dtype = control_points.dtype
-        return (torch.from_numpy(table).to(dtype), torch.from_numpy(points[base]).to(dtype),
+        bend = geometry[:, 0, :-1, BEND_COLUMNS]
+        return (torch.from_numpy(table).to(dtype), torch.from_numpy(bend.copy()).to(dtype),
+                torch.from_numpy(points[base]).to(dtype),
                 torch.from_numpy(tangents[base]).to(dtype))
 
     @staticmethod
-    def backward(ctx: Any, grad_table: torch.Tensor, *_: Any) -> tuple[Any, ...]:
+    def backward(ctx: Any, grad_table: torch.Tensor, grad_bend: torch.Tensor,
+                 *_: Any) -> tuple[Any, ...]:
         grad = grad_table.detach().numpy().astype(ctx.jacobian.dtype, copy=False)
         shape, dtype = ctx.shapes
-        grad_cps = np.einsum("nvsc,nsc->nv", ctx.jacobian, grad[..., GEOMETRY_COLUMNS])
+        grad_geometry = np.zeros(ctx.jacobian.shape[:1] + ctx.jacobian.shape[2:],
+                                 dtype=ctx.jacobian.dtype)  # (N, S + 1, N_GEOMETRY)
+        grad_geometry[..., :27] = grad[..., GEOMETRY_COLUMNS]
+        grad_geometry[:, :-1, BEND_COLUMNS] = grad_bend.detach().numpy()
+        grad_cps = np.einsum("nvsc,nsc->nv", ctx.jacobian, grad_geometry)
         grad_profile = grad[..., 28:31].sum(axis=1)
         powers = ctx.powers  # (S + 2, k)
         grad_scaling = grad[..., 24] @ powers[:-1] + grad[..., 25] @ powers[1:]

@@ -37,7 +37,12 @@ from sweepedit.fitting.keypoints import (
 )
 from sweepedit.fitting.params import DEFAULT_LAYOUT, ParamLayout
 from sweepedit.geometry.model import SweepPrimitive
-from sweepedit.geometry.sweep import axis_frames, scaling_factor, superellipse_level
+from sweepedit.geometry.sweep import (
+    axis_curvature_vectors,
+    axis_frames,
+    scaling_factor,
+    superellipse_level,
+)
 
 RESOURCES = Path(__file__).resolve().parents[1] / "resources"  # package data
 NEURAL_WEIGHTS = RESOURCES / "sweeper_neural.pt"
@@ -140,22 +145,31 @@ class AnalyticSweeper(Sweeper):
 
     def forward(self, params: torch.Tensor, queries: torch.Tensor) -> torch.Tensor:
         """params (B, K, P), queries (B, Q, 3) -> occupancy (B, K, Q) in [0, 1]."""
+        return self.occupancy_and_bend(params, queries)[0]
+
+    def occupancy_and_bend(self, params: torch.Tensor, queries: torch.Tensor
+                           ) -> tuple[torch.Tensor, torch.Tensor]:
+        """forward's occupancy (B, K, Q), and the axes' bend at the stations
+        (B, K, S, 2): the curvature vector along the frame's U and V
+        (sweep.axis_curvature_vectors), which with the profile and the scaling says
+        where a sweep folds onto itself (losses.fold_loss); both from one station table."""
         self._check(params, queries)
         B, K, _ = params.shape
         Q = queries.shape[1]
         N = B * K
         st = self._stations(params)
+        bend = st["bend"].reshape(B, K, -1, 2)
         q = queries[:, None].expand(B, K, Q, 3).reshape(N, Q, 3)
         rows, pair, bracket = self._brackets(q.detach(), st)  # (V,) each
         out = q.new_zeros(N * Q)
         if rows.numel() == 0:
-            return out.reshape(B, K, Q) + 0.0 * params.sum()
+            return out.reshape(B, K, Q) + 0.0 * params.sum(), bend
         S1 = st["table"].shape[1]
         occ = _bracket_occupancy(st["table"].reshape(N * S1, _TABLE_WIDTH), q.reshape(N * Q, 3),
                                 rows * S1 + bracket, pair, self.sharpness, self._fused_for(q))
         # A query's occupancy is the largest over its brackets.
         out = out.scatter_reduce(0, pair, occ, reduce="amax", include_self=True)
-        return out.reshape(B, K, Q)
+        return out.reshape(B, K, Q), bend
 
     def _stations(self, params: torch.Tensor) -> dict[str, torch.Tensor]:
         """Tables of the sampled (and end-extended) axis, per bracket [i, i+1].
@@ -163,7 +177,8 @@ class AnalyticSweeper(Sweeper):
         table (N, S+1, 32): per bracket, an affine map (4, 6) flattened, which takes
         [q, 1] -> (h, x, y) at station i, then at i+1; then f_i, f_i+1, arc_i, arc_i+1,
         a, b, d and the total arc length (one table, so that a step gathers and scatters
-        once: two narrower index_adds took 3x longer); points (N, S+2, 3), tangents
+        once: two narrower index_adds took 3x longer); bend (N, S, 2) (see
+        occupancy_and_bend); points (N, S+2, 3), tangents
         (N, S+2, 3); box_lo, box_hi (N, 3): boxes that hold the soft solid.
         """
         B, K, _ = params.shape
@@ -175,10 +190,11 @@ class AnalyticSweeper(Sweeper):
             from sweepedit.fitting.station_kernels import FusedStations
 
             t_np = np.linspace(0.0, 1.0, S)
-            table, pts, tangents = FusedStations.apply(cps, profile, scaling, t_np, margin)
+            table, bend, pts, tangents = FusedStations.apply(cps, profile, scaling, t_np,
+                                                             margin)
             f = table[:, :, 24].detach()
         else:
-            table, pts, tangents, f = self._station_table(cps, profile, scaling, margin)
+            table, bend, pts, tangents, f = self._station_table(cps, profile, scaling, margin)
         with torch.no_grad():
             pts, f, profile = pts.detach(), f.detach(), profile.detach()
             seg = torch.sqrt(((pts[:, 2:-1] - pts[:, 1:-2]) ** 2).sum(-1) + _EPS ** 2)
@@ -188,15 +204,15 @@ class AnalyticSweeper(Sweeper):
             # query farther than `reach` from all of them has occupancy < sigmoid(-12).
             coarse = torch.cat([pts[:, :-1:4], pts[:, -1:]], dim=1)
             coarse_gap = torch.sqrt(((coarse[:, 1:] - coarse[:, :-1]) ** 2).sum(-1)).amax(dim=1)
-        return {"table": table, "points": pts, "tangents": tangents,
+        return {"table": table, "bend": bend, "points": pts, "tangents": tangents,
                 "box_lo": pts.amin(dim=1) - pad[:, None], "box_hi": pts.amax(dim=1) + pad[:, None],
                 "coarse": coarse, "reach": pad + coarse_gap}
 
     def _station_table(self, cps: torch.Tensor, profile: torch.Tensor, scaling: torch.Tensor,
                        margin: float) -> tuple[torch.Tensor, ...]:
-        """_stations' table (N, S + 1, 32) as torch operations (any device), with the
-        extended stations' points and tangents (N, S + 2, 3) and f at the stations
-        (N, S)."""
+        """_stations' table (N, S + 1, 32) and bend (N, S, 2) as torch operations (any
+        device), with the extended stations' points and tangents (N, S + 2, 3) and f at
+        the stations (N, S)."""
         N, S = cps.shape[0], self.stations
         t = torch.linspace(0.0, 1.0, S, dtype=cps.dtype, device=cps.device)
         fr = axis_frames(cps, t)  # each (N, S, 3)
@@ -220,7 +236,9 @@ class AnalyticSweeper(Sweeper):
         table = torch.cat([affine.flatten(2),
                            torch.stack([fe[:, :-1], fe[:, 1:], arc[:, :-1], arc[:, 1:]], -1),
                            per_prim], dim=-1)
-        return table, pts, ext(fr.T), f
+        curvature = axis_curvature_vectors(cps, t)  # (N, S, 3)
+        bend = torch.stack([(curvature * fr.U).sum(-1), (curvature * fr.V).sum(-1)], dim=-1)
+        return table, bend, pts, ext(fr.T), f
 
     @torch.no_grad()
     def _brackets(self, q: torch.Tensor, st: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
