@@ -116,17 +116,21 @@ def _bend_at(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, j: int, t: float, u
     segment j (sweep.axis_curvature_vectors), along U and along V."""
     m = p0.shape[0]
     u = min(max(t, 0.0), 1.0) * m - j
-    d1 = np.empty(3)
-    d2 = np.empty(3)
-    for c in range(3):
-        d1[c] = 2.0 * m * ((1.0 - u) * (p1[j, c] - p0[j, c]) + u * (p2[j, c] - p1[j, c]))
-        d2[c] = 2.0 * m * m * (p2[j, c] - 2.0 * p1[j, c] + p0[j, c])
-    speed2 = max(d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2], 1e-9)
-    along = (d2[0] * d1[0] + d2[1] * d1[1] + d2[2] * d1[2]) / speed2
-    k = np.empty(3)
-    for c in range(3):
-        k[c] = (d2[c] - d1[c] * along) / speed2
-    return (k[0] * ux + k[1] * uy + k[2] * uz, k[0] * vx + k[1] * vy + k[2] * vz)
+    a0x, a0y, a0z = p0[j, 0], p0[j, 1], p0[j, 2]
+    a1x, a1y, a1z = p1[j, 0], p1[j, 1], p1[j, 2]
+    a2x, a2y, a2z = p2[j, 0], p2[j, 1], p2[j, 2]
+    d1x = 2.0 * m * ((1.0 - u) * (a1x - a0x) + u * (a2x - a1x))
+    d1y = 2.0 * m * ((1.0 - u) * (a1y - a0y) + u * (a2y - a1y))
+    d1z = 2.0 * m * ((1.0 - u) * (a1z - a0z) + u * (a2z - a1z))
+    d2x = 2.0 * m * m * (a2x - 2.0 * a1x + a0x)
+    d2y = 2.0 * m * m * (a2y - 2.0 * a1y + a0y)
+    d2z = 2.0 * m * m * (a2z - 2.0 * a1z + a0z)
+    speed2 = max(d1x * d1x + d1y * d1y + d1z * d1z, 1e-9)
+    along = (d2x * d1x + d2y * d1y + d2z * d1z) / speed2
+    kx = (d2x - d1x * along) / speed2
+    ky = (d2y - d1y * along) / speed2
+    kz = (d2z - d1z * along) / speed2
+    return kx * ux + ky * uy + kz * uz, kx * vx + ky * vy + kz * vz
 
 
 def _evaluate(control_points: np.ndarray, t: np.ndarray, margin: float
