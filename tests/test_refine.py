@@ -228,3 +228,40 @@ def test_adam_matches_torch_optim_adam():
             opt.step()
     assert torch.allclose(ours, theirs, rtol=0, atol=1e-6)
     assert not torch.equal(ours, target)  # it moved
+
+
+def test_shell_accuracy_sees_a_boundary_off_by_more_than_the_offset(tmp_path) -> None:
+    """Shell pairs 0.005 to either side of a cylinder's surface (a trimesh cylinder of
+    radius 0.2, loaded as a shape): the sweep of the same radius and length puts the
+    boundary between nearly every pair; one 0.01 wider misses the outer point of every
+    pair on the side (three quarters of the area), so about 5/8 are right; the score
+    carries the term with its weight."""
+    import trimesh
+
+    from sweepedit.geometry.inside import inside_union
+    from sweepedit.io.shapes import load_shape
+
+    mesh = trimesh.creation.cylinder(radius=0.2, height=0.6, sections=256)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+    path = tmp_path / "cylinder.stl"
+    mesh.export(path)
+    shape = load_shape(path, n_samples=2000)
+    # The loader normalises the longest side (0.6) to 1: radius 1/3, axis along x.
+    shell, labels = shape.shell_samples(3000, 0.005, seed=2)
+    assert len(shell) == 6000 and labels.mean() == pytest.approx(0.5, abs=0.01)
+    points = ScoringPoints(shape.winding_occupancy, shape.samples.points,
+                           shape.samples.labels, shell=shell, shell_labels=labels,
+                           shell_weight=2.0)
+    accuracy = {}
+    for radius in (1 / 3, 1 / 3 + 0.01):
+        prim = SweepPrimitive([[-0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.5, 0.0, 0.0]], a=radius,
+                              b=radius)
+        covered = inside_union(points.points, [prim])
+        accuracy[radius] = points.shell_accuracy(covered)
+        assert points.score(covered) == pytest.approx(points.iou(covered)
+                                                      + 2.0 * accuracy[radius])
+    side = 2 * np.pi * (1 / 3) * 1.0 / (2 * np.pi * (1 / 3) * 1.0 + 2 * np.pi / 9)
+    assert accuracy[1 / 3] > 0.99
+    assert accuracy[1 / 3 + 0.01] == pytest.approx(1.0 - side / 2, abs=0.03)
+    # The IoU counts the cells and samples only.
+    assert points.n_labelled == len(points.points) - 6000

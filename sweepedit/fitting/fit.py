@@ -71,6 +71,10 @@ _SPARE_SELECTION_LOGIT = 0.0
 REFINE_STEPS_PER_8 = 300
 # Surface samples for the refinement score's coverage term.
 SURFACE_SAMPLES = 2048
+# Surface samples whose pairs of points SHELL_OFFSET inside and outside the surface give
+# the refinement score's shell term (ScoringPoints): half F1@0.01's threshold.
+SHELL_SAMPLES = 2048
+SHELL_OFFSET = 0.005
 
 
 @dataclass
@@ -112,6 +116,9 @@ class FitSettings:
     # (sweepedit.fitting.refine): higher spends primitives on thin parts that IoU
     # alone would leave out.
     surface_weight: float = 1.0
+    # Weight of the shell accuracy (where the union's boundary lies, to SHELL_OFFSET)
+    # against IoU in the refinement score.
+    shell_weight: float = 1.0
     # Seconds for the whole fit (None: no limit): the best abstraction found by then is
     # returned, never an empty one.
     time_limit: float | None = None
@@ -146,6 +153,7 @@ class FitSettings:
             (self.residual_rounds >= 0, "residual rounds must be >= 0"),
             (0.0 <= self.min_gain < 1.0, "min gain must be in [0, 1)"),
             (self.surface_weight >= 0.0, "surface weight must be >= 0"),
+            (self.shell_weight >= 0.0, "shell weight must be >= 0"),
             (self.restarts >= 1, "restarts must be at least 1"),
             (self.control_points >= 3, "control points must be at least 3"),
             (self.scaling_degree >= 0, "scaling degree must be >= 0"),
@@ -427,6 +435,19 @@ def _is_valid(primitive: SweepPrimitive) -> bool:
     return True
 
 
+def scoring_points(shape: Shape, locked: Sequence[SweepPrimitive],
+                   settings: FitSettings) -> ScoringPoints:
+    """The points refinement fits and scores for a shape (ScoringPoints): the grid's
+    cells, the near-surface samples, the surface samples of the coverage term and the
+    shell pairs, with the settings' weights; `locked` primitives stay fixed."""
+    shell, shell_labels = shape.shell_samples(SHELL_SAMPLES, SHELL_OFFSET, seed=1)
+    return ScoringPoints(shape.winding_occupancy, shape.samples.points[: shape.samples.n_near],
+                         shape.samples.labels[: shape.samples.n_near], locked,
+                         surface=shape.surface_samples(SURFACE_SAMPLES, seed=0),
+                         surface_weight=settings.surface_weight, shell=shell,
+                         shell_labels=shell_labels, shell_weight=settings.shell_weight)
+
+
 def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                     locked: Sequence[SweepPrimitive] = (),
                     callback: Callable[[FitProgress], None] | None = None,
@@ -466,11 +487,7 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
         if not target.any():
             raise SweepeditError(f"{shape.path}: the shape has no volume to fit "
                                  "(empty occupancy)")
-        scoring = ScoringPoints(shape.winding_occupancy,
-                                shape.samples.points[: shape.samples.n_near],
-                                shape.samples.labels[: shape.samples.n_near], locked,
-                                surface=shape.surface_samples(SURFACE_SAMPLES, seed=0),
-                                surface_weight=settings.surface_weight)
+        scoring = scoring_points(shape, locked, settings)
     with timings.measure("skeleton"):
         skeleton = compute_skeleton(shape.occupancy)
 

@@ -22,18 +22,17 @@ import numpy as np
 
 from sweepedit.errors import SweepeditError
 from sweepedit.fitting.fit import (
-    SURFACE_SAMPLES,
     FitProgress,
     FitResult,
     FitSettings,
     configure_threads,
     resolve_device,
+    scoring_points,
 )
 from sweepedit.fitting.params import ParamLayout
 from sweepedit.fitting.refine import (
     RefineSettings,
     RefineStep,
-    ScoringPoints,
     StageTimings,
     optimise_primitives,
 )
@@ -106,11 +105,7 @@ def refit_selection(shape: Shape, primitives: Sequence[SweepPrimitive],
             break
         fixed = [p for i, p in enumerate(current) if i not in members]
         with timings.measure("scoring"):
-            scoring = ScoringPoints(shape.winding_occupancy,
-                                    shape.samples.points[: shape.samples.n_near],
-                                    shape.samples.labels[: shape.samples.n_near], fixed,
-                                    surface=shape.surface_samples(SURFACE_SAMPLES, seed=0),
-                                    surface_weight=settings.surface_weight)
+            scoring = scoring_points(shape, fixed, settings)
 
         def on_step(step: RefineStep, g: int = g, members: list[int] = members) -> None:
             if callback is None:

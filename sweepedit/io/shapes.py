@@ -137,6 +137,20 @@ class Shape:
         points, _ = trimesh.sample.sample_surface(self.surface, n, seed=seed)
         return np.asarray(points, dtype=np.float64)
 
+    def shell_samples(self, n: int, offset: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """Pairs of points `offset` (normalised units) to either side of n area-uniform
+        surface samples along the surface's normal, labelled by the inside test:
+        points (2n, 3) float64 and labels (2n,) bool. A boundary that passes between a
+        pair lies within `offset` of the surface there. Point clouds have no normals to
+        offset along: (0, 3) and (0,) for them."""
+        if self.cloud is not None or n <= 0:
+            return np.zeros((0, 3)), np.zeros(0, dtype=bool)
+        points, faces = trimesh.sample.sample_surface(self.surface, n, seed=seed)
+        normals = np.asarray(self.surface.face_normals[faces], dtype=np.float64)
+        # Not clipped to the cube: a pair at a face of the box would collapse onto it.
+        pairs = np.concatenate([points + offset * normals, points - offset * normals])
+        return pairs, np.asarray(self.inside(pairs), dtype=bool)
+
 
 def load_shape(path: str | Path, resolution: int = occ.DEFAULT_RESOLUTION,
                n_samples: int = occ.DEFAULT_SAMPLES, seed: int = 0) -> Shape:
