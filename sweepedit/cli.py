@@ -119,6 +119,16 @@ def _int_at_least(minimum: int, multiple_of: int = 1) -> Callable[[str], int]:
     return parse
 
 
+def _primitive_count(text: str) -> int | str:
+    """An argparse type for --primitives: a whole number >= 1, or "auto"."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    return _int_at_least(1)(text)
+
+
+_primitive_count.__name__ = "count"
+
+
 def _load_points(path: str) -> "np.ndarray":  # noqa: F821, UP037
     import numpy as np
 
@@ -249,7 +259,9 @@ def _run_cancellable(work: Callable[[], object], cancel: threading.Event,
 def _fit_settings(args: argparse.Namespace) -> FitSettings:
     from sweepedit.fitting.fit import FitSettings
 
-    return FitSettings(primitives=args.primitives, method=args.method,
+    auto = args.primitives == "auto"
+    return FitSettings(primitives=args.max_primitives if auto else args.primitives,
+                       auto=auto, tolerance=args.tolerance, method=args.method,
                        iterations=args.iterations, time_limit=args.time_limit,
                        device=args.device,
                        sweeper=args.sweeper, seed=args.seed, restarts=args.restarts,
@@ -266,6 +278,21 @@ def fit_progress_text(p: FitProgress) -> tuple[str, str]:
     restart = f" (restart {p.restart + 1})" if p.restart else ""
     return (f"{p.stage}{restart}",
             f"{p.stage_fraction:.0%} of stage, {len(p.abstraction.primitives)} primitives{left}")
+
+
+def count_explanation(settings: FitSettings, kept: int, stopped: str | None) -> str:
+    """One line on how many primitives a fit kept and why, where there is something to
+    say: with `auto`, why it stopped adding; else when it kept fewer than asked."""
+    from sweepedit.fitting.refine import STOP_REASONS
+
+    if settings.auto:
+        reason = STOP_REASONS.get(stopped or "", "")
+        return (f"auto: {kept} primitives (at most {settings.primitives}, tolerance "
+                f"{settings.tolerance:g}){'; ' + reason if reason else ''}")
+    if kept < settings.primitives:
+        return (f"kept {kept} of the {settings.primitives} primitives asked for: the fit "
+                "drops primitives that add nothing the others do not already cover")
+    return ""
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -322,7 +349,11 @@ def _cmd_fit(args: argparse.Namespace) -> int:
              else "time limit reached, best so far" if result.timed_out else "done")
     print(f"{state}: {len(abstraction.primitives)} primitives in {result.seconds:.1f} s; "
           f"IoU {metrics['iou']:.3f}, CD-L1 {metrics['cd_l1']:.4f}, "
-          f"F1@0.05 {metrics['f1_0.05']:.3f} -> {args.output}")
+          f"F1@0.05 {metrics['f1_0.05']:.3f}, F1@0.01 {metrics['f1_0.01']:.3f} "
+          f"-> {args.output}")
+    why = count_explanation(settings, len(abstraction.primitives), result.stopped)
+    if why:
+        print(why)
     if args.mesh:
         from sweepedit.io.mesh_export import export_abstraction
 
@@ -450,7 +481,17 @@ def _cmd_gui(args: argparse.Namespace) -> int:
 
 
 def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
-    p.add_argument("--primitives", "-k", type=int, default=8, help="primitives to fit (8)")
+    p.add_argument("--primitives", "-k", type=_primitive_count, default=8, metavar="K|auto",
+                   help="primitives to fit, or auto: as many as the shape needs, added where "
+                        "it is missed until the surfaces agree within --tolerance (8)")
+    # The defaults are fitting.fit's (DEFAULT_TOLERANCE, AUTO_MAX_PRIMITIVES, AUTO_ROUNDS),
+    # written out: importing it here would import torch for every command's --help.
+    p.add_argument("--tolerance", type=float, default=0.008, metavar="DISTANCE",
+                   help="with --primitives auto: stop adding primitives once 95%% of each "
+                        "surface lies within this of the other, as a share of the shape's "
+                        "longest side (0.008)")
+    p.add_argument("--max-primitives", type=_int_at_least(1), default=32,
+                   help="with --primitives auto: the most it may use (32)")
     p.add_argument("--method", choices=("direct", "network"), default="direct",
                    help="direct: warm start from the skeleton, then refinement (fast); "
                         "network: SweepNet's per-shape network stage first, as in the paper "
@@ -469,8 +510,9 @@ def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
     p.add_argument("--refine-iterations", type=int, default=None,
                    help="steps of direct refinement after the network stage; 0 skips it "
                         "(300 per 8 primitives, at least 300)")
-    p.add_argument("--residual-rounds", type=int, default=2,
-                   help="refinement rounds that add primitives where the shape is missed (2)")
+    p.add_argument("--residual-rounds", type=int, default=None,
+                   help="refinement rounds that add primitives where the shape is missed "
+                        "(2; with --primitives auto 6)")
     p.add_argument("--min-gain", type=float, default=0.001,
                    help="score a primitive must add to be kept, up to 8 primitives (beyond, "
                         "it shrinks as 8/K); higher keeps fewer (0.001)")

@@ -141,6 +141,9 @@ def test_inside_with_soft_sweepers_agrees_with_exact(params_file: Path, tmp_path
         ["export", "{params}", "-o", "{tmp}/m.stl", "--stations", "1"],
         ["export", "{params}", "-o", "{tmp}/m.stl", "--stations", "many"],
         ["eval", "{params}", "{tmp}/shape.stl", "--samples", "0"],
+        ["fit", "{tmp}/shape.stl", "-o", "{tmp}/o.json", "--primitives", "0"],
+        ["fit", "{tmp}/shape.stl", "-o", "{tmp}/o.json", "--primitives", "many"],
+        ["fit", "{tmp}/shape.stl", "-o", "{tmp}/o.json", "-k", "auto", "--max-primitives", "0"],
     ],
 )
 def test_bad_option_values_are_usage_errors(params_file: Path, tmp_path: Path, capsys,
@@ -268,6 +271,17 @@ def test_fit_options_default_to_fit_settings() -> None:
     args = build_parser().parse_args(["fit", "shape.obj", "-o", "out.json",
                                       "--surface-weight", "0", "--min-gain", "0.01"])
     assert (_fit_settings(args).surface_weight, _fit_settings(args).min_gain) == (0.0, 0.01)
+    # --primitives auto: the cap is --max-primitives, its default fit.py's.
+    from sweepedit.fitting.fit import AUTO_MAX_PRIMITIVES
+
+    auto = _fit_settings(build_parser().parse_args(["fit", "s.obj", "-o", "o.json",
+                                                    "--primitives", "auto"]))
+    assert auto == FitSettings(primitives=AUTO_MAX_PRIMITIVES, auto=True)
+    assert auto.rounds > FitSettings().rounds
+    capped = _fit_settings(build_parser().parse_args(
+        ["fit", "s.obj", "-o", "o.json", "-k", "AUTO", "--max-primitives", "12",
+         "--tolerance", "0.02"]))
+    assert (capped.primitives, capped.auto, capped.tolerance) == (12, True, 0.02)
 
 
 def test_per_primitive_export_that_fails_leaves_no_files(params_file: Path, tmp_path: Path,

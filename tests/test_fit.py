@@ -235,3 +235,61 @@ def test_time_left_follows_the_pace_after_the_first_step(monkeypatch) -> None:
     limited = fit_module._Clock(8.0, threading.Event(), total_steps=100)
     now[0] = 11.0  # 4 s after its start: at most the 4 s left of the limit
     assert limited.seconds_left(1) == pytest.approx(4.0)
+
+
+def _tubes(count: int) -> list[SweepPrimitive]:
+    """count straight round tubes, parallel to z, apart from each other."""
+    angles = np.linspace(0.0, 2.0 * np.pi, count, endpoint=False)
+    ring = 0.0 if count == 1 else 0.3
+    return [SweepPrimitive([[ring * np.cos(a), ring * np.sin(a), -0.35],
+                            [ring * np.cos(a), ring * np.sin(a), 0.0],
+                            [ring * np.cos(a), ring * np.sin(a), 0.35]],
+                           a=0.06, b=0.06, degree=2.0, scaling=(0.0, 0.0)) for a in angles]
+
+
+@pytest.fixture(scope="module")
+def tube_shapes(tmp_path_factory: pytest.TempPathFactory) -> dict[int, object]:
+    """Shapes made of 1, 3 and 6 separate straight tubes (one mesh file each)."""
+    from sweepedit.geometry.mesher import union_mesh
+
+    folder = tmp_path_factory.mktemp("tubes")
+    shapes = {}
+    for count in (1, 3, 6):
+        path = folder / f"tubes_{count}.stl"
+        write_mesh(union_mesh([sweep_mesh(p, 64, 48) for p in _tubes(count)]), path)
+        shapes[count] = load_shape(path)
+    return shapes
+
+
+@pytest.mark.parametrize("count", [1, 3, 6])
+def test_auto_finds_one_primitive_per_separate_tube(tube_shapes, count: int) -> None:
+    """With the automatic count the shape decides: one sweep per tube, each following
+    its tube, and the result says why it stopped adding."""
+    from sweepedit.analysis.metrics import evaluate
+    from sweepedit.fitting.refine import STOP_REASONS
+
+    shape = tube_shapes[count]
+    result = fit_abstraction(shape, FitSettings(primitives=32, auto=True))
+    prims = result.abstraction.primitives
+    assert len(prims) == count
+    assert result.stopped in STOP_REASONS and result.abstraction.fit["stopped"] == result.stopped
+    assert result.abstraction.fit["auto"] is True
+    metrics = evaluate(result.abstraction, shape, n_samples=20000)
+    assert metrics["iou"] > 0.95 and metrics["f1_0.05"] > 0.99, metrics
+    # Each primitive on its own tube: its axis within a tube radius of the tube's.
+    centres = shape.normalization.to_normalized(np.array(
+        [t.control_points[1] for t in _tubes(count)]))
+    for p in prims:
+        middle = p.control_points[len(p.control_points) // 2]
+        assert np.min(np.linalg.norm(centres[:, :2] - middle[:2], axis=1)) < 0.06
+
+
+def test_auto_stops_at_its_cap_and_when_accurate(tube_shapes) -> None:
+    shape = tube_shapes[6]
+    capped = fit_abstraction(shape, FitSettings(primitives=4, auto=True))
+    assert len(capped.abstraction.primitives) <= 4
+    # A loose tolerance is met at once: no residual round runs.
+    loose = fit_abstraction(tube_shapes[1], FitSettings(primitives=32, auto=True,
+                                                        tolerance=0.2))
+    assert loose.stopped == "accurate"
+    assert loose.abstraction.fit["agreement"] >= 0.95

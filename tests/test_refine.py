@@ -96,7 +96,8 @@ def test_refinement_recovers_a_perturbed_sweep() -> None:
     start.a, start.b, start.degree, start.scaling = 0.12, 0.04, 2.0, (0.0, 0.0)
     start_score = points.score(inside_primitive(points.points, start))
     settings = RefineSettings(iterations=120, cells=2048, samples=1024, residual_rounds=0)
-    refined, score, _ = refine_primitives([start], ParamLayout(), points, settings, seed=0)
+    result = refine_primitives([start], ParamLayout(), points, settings, seed=0)
+    refined, score = result.primitives, result.score
     assert len(refined) == 1
     refined[0].validate()
     assert score == pytest.approx(points.score(inside_primitive(points.points, refined[0])))
@@ -116,8 +117,9 @@ def test_refinement_keeps_locked_primitives_out_and_is_never_worse() -> None:
     assert points.locked.any()
     # BAR_Y itself is already the best answer: refinement may not make it worse.
     before = points.score(inside_primitive(points.points, BAR_Y))
-    refined, score, _ = refine_primitives([BAR_Y], ParamLayout(), points,
-                                       RefineSettings(iterations=30, residual_rounds=0))
+    result = refine_primitives([BAR_Y], ParamLayout(), points,
+                               RefineSettings(iterations=30, residual_rounds=0))
+    refined, score = result.primitives, result.score
     assert score >= before - 1e-12
     assert before > 0.9
     assert len(refined) == 1
@@ -130,13 +132,15 @@ def test_at_the_budget_a_primitive_is_swapped_for_a_bigger_missed_part() -> None
     # One primitive allowed, sitting on the thin bar: the fat one is worth more.
     settings = RefineSettings(iterations=10, residual_rounds=1, residual_iterations=60)
     before = points.score(inside_primitive(points.points, thin))
-    refined, score, _ = refine_primitives([thin], ParamLayout(), points, settings, budget=1)
+    result = refine_primitives([thin], ParamLayout(), points, settings, budget=1)
+    refined, score = result.primitives, result.score
     assert len(refined) == 1
     axis = refined[0].control_points
     assert np.ptp(axis[:, 0]) > 0.4 and np.ptp(axis[:, 1]) < 0.1, axis
     assert score > before
     # With room for two, both bars are covered.
-    both, score_both, _ = refine_primitives([thin], ParamLayout(), points, settings, budget=2)
+    result = refine_primitives([thin], ParamLayout(), points, settings, budget=2)
+    both, score_both = result.primitives, result.score
     assert len(both) == 2 and score_both > score
 
 

@@ -90,6 +90,8 @@ def test_layouts_are_offered_simplest_first_and_never_beyond_the_primitive() -> 
     assert all(n <= 8 and k <= 3 for n, k in choices)
     costs = [3 * n + k for n, k in choices[:-1]]
     assert costs == sorted(costs)
+    # Only axes that go back into 8 control points exactly: 1, 2 or 3 segments of 6.
+    assert {n for n, _ in choices} == {3, 4, 5, 8}
     assert layout_choices(SweepPrimitive(np.eye(3) * 0.2, scaling=()))[-1] == (3, 0)
 
 

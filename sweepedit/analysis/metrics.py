@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sweepedit.geometry.arrays import as_array
-from sweepedit.geometry.inside import grid_points, inside_primitive, inside_union
+from sweepedit.geometry.inside import T_SAMPLES, grid_points, inside_primitive, inside_union
 from sweepedit.geometry.mesher import sweep_meshes
 from sweepedit.geometry.model import Abstraction, SweepPrimitive, folds_onto_itself
 from sweepedit.geometry.solid import solid_mesh
@@ -31,6 +31,11 @@ F1_TAUS = (0.05, 0.01)
 # the strictest F1 threshold (0.01).
 _SAMPLE_STATIONS = 96
 _SAMPLE_PROFILE_POINTS = 64
+# outer_surface_samples(quick=True): chords of about 0.005 on a primitive 0.5 long, and
+# the refreshes' axis samples.
+_QUICK_STATIONS = 48
+_QUICK_PROFILE_POINTS = 32
+_QUICK_T_SAMPLES = 128
 
 
 def iou(pred: np.ndarray, target: np.ndarray) -> float:
@@ -56,20 +61,26 @@ def sample_triangles(vertices: np.ndarray, faces: np.ndarray, count: int,
 
 
 def outer_surface_samples(primitives: Sequence[SweepPrimitive], count: int = N_SAMPLES,
-                          seed: int = 0) -> np.ndarray:
+                          seed: int = 0, *, quick: bool = False) -> np.ndarray:
     """Area-uniform samples on the union's outer surface: -> (count, 3).
 
     Each primitive's surface is sampled in proportion to its area; samples inside
     another primitive are dropped, and the kept ones topped up to `count`. A primitive
     that folds onto itself is sampled on the mesh of its solid: its display tube turns
     inside-out there, with sheets inside the solid and none on the fold's outer side.
+    quick: for an estimate while fitting, coarser meshes, a coarser inside test and the
+    display tube even where a primitive folds (its solid's mesh takes seconds).
     """
     if not primitives:
         return np.zeros((0, 3))
     rng = np.random.default_rng(seed)
-    meshes = sweep_meshes(primitives, _SAMPLE_STATIONS, _SAMPLE_PROFILE_POINTS)
-    meshes = [solid_mesh(p, _SAMPLE_STATIONS, _SAMPLE_PROFILE_POINTS) if folds_onto_itself(p)
-              else m for p, m in zip(primitives, meshes, strict=True)]
+    stations, ring = (_QUICK_STATIONS, _QUICK_PROFILE_POINTS) if quick else (
+        _SAMPLE_STATIONS, _SAMPLE_PROFILE_POINTS)
+    t_samples = _QUICK_T_SAMPLES if quick else T_SAMPLES
+    meshes = sweep_meshes(primitives, stations, ring)
+    if not quick:
+        meshes = [solid_mesh(p, stations, ring) if folds_onto_itself(p) else m
+                  for p, m in zip(primitives, meshes, strict=True)]
     vertices = np.concatenate([m.vertices for m in meshes])
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
     faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets, strict=True)])
@@ -81,7 +92,7 @@ def outer_surface_samples(primitives: Sequence[SweepPrimitive], count: int = N_S
         keep = np.ones(ask, dtype=bool)
         for j, prim in enumerate(primitives):
             others = np.flatnonzero(keep & (owner[face] != j))
-            keep[others[inside_primitive(pts[others], prim)]] = False
+            keep[others[inside_primitive(pts[others], prim, t_samples)]] = False
         kept.append(pts[keep])
         have += int(keep.sum())
         share = max(keep.mean(), 0.05)
@@ -106,6 +117,21 @@ def chamfer_and_f1(pred: np.ndarray, target: np.ndarray,
         f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
         out[f"f1_{tau:g}"] = f1
     return out
+
+
+def surface_agreement(primitives: Sequence[SweepPrimitive], target: np.ndarray, tau: float,
+                      count: int = 8000, seed: int = 0) -> float:
+    """An estimate, while fitting, of how closely the union of primitives follows a
+    surface: the smaller of F1's precision and recall at tau (docs/quality.md) between
+    `count` quick samples of the union's outer surface (outer_surface_samples) and the
+    shape's surface samples target (M, 3). 1.0 means every sample of each surface lies
+    within tau of the other's."""
+    pred = outer_surface_samples(primitives, count, seed, quick=True)
+    if not len(pred):
+        return 0.0
+    d_pred = cKDTree(target).query(pred, k=1, workers=-1)[0]
+    d_target = cKDTree(pred).query(target, k=1, workers=-1)[0]
+    return float(min(np.mean(d_pred < tau), np.mean(d_target < tau)))
 
 
 def shape_inside_grid(shape: Shape, resolution: int = RESOLUTION) -> np.ndarray:

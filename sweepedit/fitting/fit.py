@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from sweepedit.analysis.metrics import surface_agreement
 from sweepedit.errors import SweepeditError, primitive_label
 from sweepedit.fitting.losses import (
     LossWeights,
@@ -54,6 +55,7 @@ from sweepedit.fitting.sweepers import load_sweeper
 from sweepedit.fitting.warmstart import warm_start_primitives
 from sweepedit.geometry.inside import inside_union
 from sweepedit.geometry.model import Abstraction, SweepPrimitive, palette_color
+from sweepedit.geometry.simplify import simplify_primitives
 from sweepedit.geometry.sweep import axis_points
 
 if TYPE_CHECKING:
@@ -69,6 +71,19 @@ _WARM_SELECTION_LOGIT = 2.0
 _SPARE_SELECTION_LOGIT = 0.0
 # Default refinement steps per 8 primitives (FitSettings.refine_steps).
 REFINE_STEPS_PER_8 = 300
+# The automatic count (FitSettings.auto): at most this many primitives unless asked
+# otherwise, residual rounds up to AUTO_ROUNDS, and the surface agreement it stops at:
+# AUTO_AGREEMENT of each surface's samples within `tolerance` of the other's.
+AUTO_MAX_PRIMITIVES = 32
+AUTO_ROUNDS = 6
+AUTO_AGREEMENT = 0.95
+DEFAULT_TOLERANCE = 0.008
+# Shape surface samples the agreement is estimated on.
+AGREEMENT_SAMPLES = 8000
+# A fitted primitive gets the simplest layout (fewest control points and scaling terms)
+# that keeps its surface within this of the fitted one (geometry.simplify): a fifth of
+# F1@0.01's threshold.
+SIMPLIFY_TOLERANCE = 0.002
 # Surface samples for the refinement score's coverage term.
 SURFACE_SAMPLES = 2048
 # Surface samples whose pairs of points SHELL_OFFSET inside and outside the surface give
@@ -82,6 +97,11 @@ class FitSettings:
     """How to fit. `primitives` is K, the number of new primitives (locked ones come on top)."""
 
     primitives: int = 8
+    # Decide the count from the shape: add primitives where it is missed until the
+    # surfaces agree within `tolerance` (AUTO_AGREEMENT of each within it of the other),
+    # drop those that add nothing; `primitives` is then the most it may use.
+    auto: bool = False
+    tolerance: float = DEFAULT_TOLERANCE
     # "direct": warm start, then refinement; "network": the paper's network stage
     # (`iterations` steps) between them.
     method: str = "direct"
@@ -107,8 +127,9 @@ class FitSettings:
     # per 8 primitives, at least that many (`refine_steps`).
     refine_iterations: int | None = None
     # Rounds of refinement that add primitives where the shape is missed (each half as
-    # long as the first pass), while fewer than `primitives` are kept.
-    residual_rounds: int = 2
+    # long as the first pass), while fewer than `primitives` are kept. None: 2, or
+    # AUTO_ROUNDS with `auto`.
+    residual_rounds: int | None = None
     # What a primitive must add to the refinement score (IoU plus weighted surface
     # coverage) to be kept, up to 8 primitives (beyond, `keep_gain`): higher keeps fewer.
     min_gain: float = 0.001
@@ -126,10 +147,19 @@ class FitSettings:
     device: str = "auto"
 
     @property
+    def rounds(self) -> int:
+        """Residual rounds: as set, else 2, or AUTO_ROUNDS with `auto`."""
+        if self.residual_rounds is not None:
+            return self.residual_rounds
+        return AUTO_ROUNDS if self.auto else 2
+
+    @property
     def keep_gain(self) -> float:
         """What a primitive must add to be kept: min_gain up to 8 primitives, then shrinking
-        as 8 / K, since each of K primitives' natural share of the shape does."""
-        return self.min_gain * min(1.0, 8.0 / max(self.primitives, 1))
+        as 8 / K, since each of K primitives' natural share of the shape does (with
+        `auto`, K = 16)."""
+        k = 16 if self.auto else self.primitives
+        return self.min_gain * min(1.0, 8.0 / max(k, 1))
 
     @property
     def refine_steps(self) -> int:
@@ -150,7 +180,9 @@ class FitSettings:
             (self.iterations >= 1, "iterations must be at least 1"),
             (self.refine_iterations is None or self.refine_iterations >= 0,
              "refine iterations must be >= 0"),
-            (self.residual_rounds >= 0, "residual rounds must be >= 0"),
+            (self.residual_rounds is None or self.residual_rounds >= 0,
+             "residual rounds must be >= 0"),
+            (self.tolerance > 0.0, "tolerance must be positive"),
             (0.0 <= self.min_gain < 1.0, "min gain must be in [0, 1)"),
             (self.surface_weight >= 0.0, "surface weight must be >= 0"),
             (self.shell_weight >= 0.0, "shell weight must be >= 0"),
@@ -202,6 +234,9 @@ class FitResult:
     stage_seconds: dict[str, float] = field(default_factory=dict)
     # The time limit ended the fit before it was done.
     timed_out: bool = False
+    # Why refinement stopped adding primitives (refine.STOP_REASONS), None when it did
+    # not run.
+    stopped: str | None = None
 
 
 def resolve_device(name: str) -> str:
@@ -472,13 +507,17 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
     timings = StageTimings()
     layout = ParamLayout(settings.control_points, settings.scaling_degree)
 
-    steps = settings.refine_steps
+    # With `auto` each pass's steps follow its own count (per 8 primitives), which the
+    # shape decides; the progress estimate takes half the most it may use.
+    steps = REFINE_STEPS_PER_8 if settings.auto and settings.refine_iterations is None \
+        else settings.refine_steps
     refine = RefineSettings(iterations=steps, start_sharpness=settings.sharpness,
                             min_gain=settings.keep_gain,
-                            residual_rounds=settings.residual_rounds if steps else 0,
-                            residual_iterations=steps // 2, device=device)
+                            residual_rounds=settings.rounds if steps else 0,
+                            residual_iterations=steps // 2, device=device,
+                            steps_per_8=settings.auto)
     network_steps = settings.iterations if settings.method == "network" else 0
-    per_restart = network_steps + refine.total_steps
+    per_restart = network_steps + refine.total_steps(max(settings.primitives // 2, 8))
     total_iterations = per_restart * settings.restarts
     clock = _Clock(settings.time_limit, cancel, total_iterations)
 
@@ -509,7 +548,17 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                                  float(min(max(fraction, 0.0), 1.0)),
                                  clock.seconds_left(done)))
 
-    best: tuple[float, list[SweepPrimitive], dict[str, float], np.ndarray | None] | None = None
+    accurate = None
+    if settings.auto:
+        agreement_target = shape.surface_samples(AGREEMENT_SAMPLES, seed=3)
+
+        def accurate(prims: list[SweepPrimitive]) -> bool:
+            return surface_agreement([*locked, *prims], agreement_target,
+                                     settings.tolerance) >= AUTO_AGREEMENT
+
+    stopped: str | None = None
+    best: tuple[float, list[SweepPrimitive], dict[str, float], np.ndarray | None,
+                str | None] | None = None
     for restart in range(settings.restarts):
         if restart and clock.stop():
             break
@@ -537,22 +586,32 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                 report(base + network_steps + step.step + 1, restart,
                        {**losses, **step.losses}, step.primitives, step.stage, step.fraction)
 
-            prims, score, occupancy = refine_primitives(
+            refined = refine_primitives(
                 prims, layout, scoring, refine, budget=settings.primitives, seed=seed,
                 stop=clock.stop, on_step=on_refine_step, report_every=settings.progress_every,
-                timings=timings)
+                timings=timings, accurate=accurate)
+            prims, score, occupancy = refined.primitives, refined.score, refined.occupancy
+            stopped = refined.stopped
         if best is None or score > best[0] or math.isnan(best[0]):
-            best = (score, prims, losses, occupancy)
+            best = (score, prims, losses, occupancy, stopped)
 
     if best is None:
         raise SweepeditError(f"{shape.path}: fitting produced no valid primitive")
-    score, prims, losses, occupancy = best
+    score, prims, losses, occupancy, stopped = best
+    with timings.measure("simplify"):
+        simple = simplify_primitives(prims, SIMPLIFY_TOLERANCE)
+    changed = [i for i, (p, q) in enumerate(zip(prims, simple, strict=True)) if p is not q]
     # What the restarts were judged by includes surface coverage; the record reports
     # the plain IoU over the scoring points, which a user can compare across settings.
     iou = math.nan
     if occupancy is not None and not math.isnan(score):
         with timings.measure("scoring"):
+            if changed:  # the simplified primitives' rows, tested again
+                occupancy = occupancy.copy()
+                occupancy[changed] = scoring.occupancy([simple[i] for i in changed],
+                                                       refine.scoring_t_samples)
             iou = scoring.iou(occupancy.any(axis=0))
+    prims = simple
     abstraction = make_abstraction(prims)
     seconds = clock.elapsed()
     abstraction.source = {"path": str(shape.path), "sha256": shape.sha256}
@@ -561,10 +620,15 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                    "refine_steps": steps, "cancelled": cancel.is_set(), "locked": len(locked),
                    "device": device, "timed_out": clock.timed_out,
                    "stage_seconds": {k: round(v, 3) for k, v in timings.seconds.items()},
-                   "fit_iou": None if math.isnan(iou) else round(iou, 6)})
+                   "fit_iou": None if math.isnan(iou) else round(iou, 6),
+                   "stopped": stopped})
+    if settings.auto:
+        with timings.measure("scoring"):
+            record["agreement"] = round(surface_agreement([*locked, *prims], agreement_target,
+                                                          settings.tolerance), 4)
     abstraction.fit = record
     return FitResult(abstraction, seconds, losses, iou, cancel.is_set(), timings.seconds,
-                     clock.timed_out)
+                     clock.timed_out, stopped)
 
 
 def _network_stage(shape: Shape, settings: FitSettings, seed: int,

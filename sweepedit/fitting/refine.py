@@ -116,10 +116,14 @@ class RefineSettings:
     # tighter than the profile's reach, where a sweep folds onto itself.
     fold_weight: float = 0.0
 
-    @property
-    def total_steps(self) -> int:
-        """Steps of refinement at most (first pass and every residual round)."""
-        return self.iterations + self.residual_rounds * self.residual_iterations
+    # Steps of each pass for 8 primitives, and more for more (pass_steps); else as set.
+    steps_per_8: bool = False
+
+    def total_steps(self, n_primitives: int = 8) -> int:
+        """Steps of refinement at most (first pass and every residual round) for
+        about n_primitives."""
+        return (pass_steps(self, n_primitives, first=True)
+                + self.residual_rounds * pass_steps(self, n_primitives, first=False))
 
 
 class ScoringPoints:
@@ -336,6 +340,39 @@ def _never() -> bool:
     return False
 
 
+# Why refinement stopped adding primitives (RefineResult.stopped), in a user's words.
+STOP_REASONS = {
+    "accurate": "the surfaces agree within the tolerance",
+    "nothing missed": "no part of the shape is left out that a primitive could cover",
+    "no gain": "another primitive made the fit no better",
+    "rounds": "the residual rounds were all used",
+    "stopped": "cancelled or out of time",
+}
+
+
+@dataclass
+class RefineResult:
+    """What refine_primitives found: the primitives, their score and exact occupancy
+    (K, N) bool at the scoring points, and why it stopped adding primitives (a key of
+    STOP_REASONS)."""
+
+    primitives: list[SweepPrimitive]
+    score: float
+    occupancy: np.ndarray
+    stopped: str
+
+
+def pass_steps(settings: RefineSettings, n_primitives: int, first: bool) -> int:
+    """Steps of a pass over n_primitives: settings.iterations (the first pass) or
+    settings.residual_iterations, each for 8 primitives when settings.steps_per_8 (a
+    step's points are shared by all primitives, so more need more steps to move as
+    far), else as they are."""
+    steps = settings.iterations if first else settings.residual_iterations
+    if settings.steps_per_8:
+        steps = round(steps * max(1.0, n_primitives / 8.0))
+    return steps
+
+
 def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
                       points: ScoringPoints, settings: RefineSettings | None = None, *,
                       budget: int | None = None, seed: int = 0,
@@ -343,32 +380,40 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
                       on_step: StepCallback | None = None,
                       report_every: int = 10,
                       timings: StageTimings | None = None,
-                      ) -> tuple[list[SweepPrimitive], float, np.ndarray]:
+                      accurate: Callable[[list[SweepPrimitive]], bool] | None = None,
+                      ) -> RefineResult:
     """Refine primitives (all of `layout`) against the scoring points and prune them; then,
     for up to `settings.residual_rounds` rounds, try to cover the missed parts: while
     fewer than `budget` (default: as many as given) are kept, add primitives for the
     biggest missed parts (`residual_primitives`); at the budget, swap the primitive that
     adds least for one on the biggest missed part. Each trial is refined and pruned, and
-    kept only if it raises the score.
+    kept only if it raises the score. With `accurate`, no round starts once it holds
+    for the primitives (the automatic count: add primitives until the fit is accurate).
 
     stop() is polled every step (cancel, time limit): a pass that is stopped keeps its
     best state so far, and no further round starts. on_step gets a RefineStep every
-    `report_every` steps and at the end of each pass. Returns the best primitives found
-    (never worse by the score than the input), their score and their exact occupancy
-    (K', N) bool at the scoring points.
+    `report_every` steps and at the end of each pass. The primitives are the best found
+    (never worse by the score than the input).
     """
     settings = settings or RefineSettings()
     timings = timings or StageTimings()
     budget = len(primitives) if budget is None else budget
     rng = np.random.default_rng(seed)
     rounds = settings.residual_rounds
-    prims, occupancy = _refine_pass(list(primitives), layout, points, settings,
-                                    settings.iterations, rng, stop, on_step, 0, report_every,
-                                    "refinement", timings)
-    offset = settings.iterations
+    steps = pass_steps(settings, len(primitives), first=True)
+    prims, occupancy = _refine_pass(list(primitives), layout, points, settings, steps, rng,
+                                    stop, on_step, 0, report_every, "refinement", timings)
+    offset = steps
+    stopped = "rounds"
     for k in range(rounds):
         if stop() or not prims:
+            stopped = "stopped"
             break
+        if accurate is not None:
+            with timings.measure("residual rounds"):
+                if accurate(prims):
+                    stopped = "accurate"
+                    break
         with timings.measure("residual rounds"):
             covered = occupancy.any(axis=0)
             missed = missed_parts(points, covered, settings.min_missed_cells)
@@ -394,19 +439,23 @@ def refine_primitives(primitives: Sequence[SweepPrimitive], layout: ParamLayout,
                 trial_start = np.concatenate([kept_rows, points.occupancy(
                     new, settings.scoring_t_samples)])
         if not new:
-            break  # nothing missed worth a primitive: another pass would refine the same
+            # Nothing missed worth a primitive: another pass would refine the same.
+            stopped = "nothing missed"
+            break
         trial = kept + new
         # All primitives move in the round: with the old ones frozen (5x cheaper) the
         # many-limbed shapes lost F1@0.05, the body making no room for a new limb.
+        steps = pass_steps(settings, len(trial), first=False)
         trial_prims, trial_occupancy = _refine_pass(
-            trial, layout, points, settings, settings.residual_iterations, rng, stop, on_step,
+            trial, layout, points, settings, steps, rng, stop, on_step,
             offset, report_every, f"residual round {k + 1} of {rounds}", timings,
             timing_name="residual rounds", start_occupancy=trial_start)
-        offset += settings.residual_iterations
+        offset += steps
         if points.score(trial_occupancy.any(axis=0)) <= points.score(covered):
+            stopped = "stopped" if stop() else "no gain"
             break  # the next round would try much the same again
         prims, occupancy = trial_prims, trial_occupancy
-    return prims, points.score(occupancy.any(axis=0)), occupancy
+    return RefineResult(prims, points.score(occupancy.any(axis=0)), occupancy, stopped)
 
 
 def _refine_pass(prims: list[SweepPrimitive], layout: ParamLayout, points: ScoringPoints,

@@ -31,7 +31,7 @@ COMPARE_STATIONS = 65
 COMPARE_ANGLES = 32
 # Control points and scaling terms a simplified primitive may get, simplest first
 # (layouts beyond the primitive's own are never offered).
-CONTROL_POINT_CHOICES = (3, 4, 5, 6, 8, 10, 12)
+CONTROL_POINT_CHOICES = (3, 4, 5, 6, 8, 10, 14)
 SCALING_CHOICES = (2, 3, 4, 5, 6)
 
 
@@ -63,10 +63,14 @@ def surface_deviation(first: SweepPrimitive, second: SweepPrimitive) -> float:
 
 def layout_choices(primitive: SweepPrimitive) -> list[tuple[int, int]]:
     """The (control points, scaling terms) layouts simpler than the primitive's own,
-    fewest parameters first, then its own."""
+    fewest parameters first, then its own. Only axes whose segments nest in the
+    primitive's are offered (its segment count a multiple of theirs), so that the
+    simplified primitive goes back into the fit's layout exactly (relayout) when a later
+    refinement, such as refitting a selection with others of the first layout, needs
+    it there."""
     n, k = primitive.n_control_points, len(primitive.scaling)
     simpler = {(m, j) for m in (*CONTROL_POINT_CHOICES, n) for j in (*SCALING_CHOICES, k)
-               if m <= n and j <= k and (m, j) != (n, k)}
+               if m <= n and (n - 2) % (m - 2) == 0 and j <= k and (m, j) != (n, k)}
     return [*sorted(simpler, key=lambda mj: (3 * mj[0] + mj[1], mj[0])), (n, k)]
 
 
