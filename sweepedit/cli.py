@@ -280,15 +280,14 @@ def fit_progress_text(p: FitProgress) -> tuple[str, str]:
             f"{p.stage_fraction:.0%} of stage, {len(p.abstraction.primitives)} primitives{left}")
 
 
-def count_explanation(settings: FitSettings, kept: int, stopped: str | None) -> str:
+def count_explanation(settings: FitSettings, kept: int, record: dict) -> str:
     """One line on how many primitives a fit kept and why, where there is something to
-    say: with `auto`, why it stopped adding; else when it kept fewer than asked."""
-    from sweepedit.fitting.refine import STOP_REASONS
-
+    say: with `auto`, why it stopped adding (the fit record's stopped_because); else
+    when it kept fewer than asked."""
     if settings.auto:
-        reason = STOP_REASONS.get(stopped or "", "")
+        because = record.get("stopped_because")
         return (f"auto: {kept} primitives (at most {settings.primitives}, tolerance "
-                f"{settings.tolerance:g}){'; ' + reason if reason else ''}")
+                f"{settings.tolerance:g}){'; ' + because if because else ''}")
     if kept < settings.primitives:
         return (f"kept {kept} of the {settings.primitives} primitives asked for: the fit "
                 "drops primitives that add nothing the others do not already cover")
@@ -351,7 +350,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
           f"IoU {metrics['iou']:.3f}, CD-L1 {metrics['cd_l1']:.4f}, "
           f"F1@0.05 {metrics['f1_0.05']:.3f}, F1@0.01 {metrics['f1_0.01']:.3f} "
           f"-> {args.output}")
-    why = count_explanation(settings, len(abstraction.primitives), result.stopped)
+    why = count_explanation(settings, len(abstraction.primitives), abstraction.fit or {})
     if why:
         print(why)
     if args.mesh:

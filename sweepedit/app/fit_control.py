@@ -46,16 +46,24 @@ def _join_orphan_threads() -> None:
             thread.wait()
 
 
-def fewer_primitives_text(asked: Any, got: int, stopped: bool) -> str:
-    """Why a fit gave fewer primitives than asked for; '' when it did not."""
+def count_text(values: dict[str, Any], got: int, record: dict[str, Any],
+               interrupted: bool) -> str:
+    """Why a fit gave the primitives it did, for the status bar: with the automatic count
+    why it stopped adding (the record's stopped_because); else why it gave fewer than
+    asked for; '' when there is nothing to say."""
+    if values.get("auto"):
+        because = record.get("stopped_because")
+        cap = values.get("primitives")
+        return (f"Automatic count: {got} primitive{'s' if got != 1 else ''} (at most {cap})"
+                + (f": {because}." if because else "."))
     try:
-        asked = int(asked)
+        asked = int(values.get("primitives"))  # type: ignore[arg-type]
     except (TypeError, ValueError):
         return ""
     if got >= asked:
         return ""
     plural = "s" if asked != 1 else ""
-    if stopped:
+    if interrupted:
         why = ("the fit was stopped before it had placed them all; it keeps the best "
                "result so far (run it again to let it finish)")
     else:
@@ -83,6 +91,7 @@ class FitControl(QObject):
         self.last_cancel_timing: dict[str, float] = {}
         self._locked: list[Any] = []
         self._values: dict[str, Any] = {}
+        self._refit = False
         self._started = 0.0
         self._preview: Abstraction | None = None
 
@@ -99,6 +108,7 @@ class FitControl(QObject):
             self.prompts.report_error("Cannot fit", "Open a shape first: the fit needs a target.")
             return False
         self._values = dict(values)
+        self._refit = refit is not None
         self._preview = None
         # A refit's result holds every primitive (the fixed ones as exact copies).
         self._locked = ([] if refit is not None
@@ -214,9 +224,9 @@ class FitControl(QObject):
         how = ("Cancelled; kept the best result" if cancelled
                else "Time limit reached; kept the best result" if timed_out else "Done")
         message = f"{how}: {len(prims)} primitives in {seconds:.1f} s (Ctrl+Z undoes it)"
-        shortfall = fewer_primitives_text(self._values.get("primitives"),
-                                          len(prims) - len(self._locked),
-                                          cancelled or timed_out)
+        # A refit neither adds nor removes primitives: no count to explain.
+        shortfall = "" if self._refit else count_text(
+            self._values, len(prims) - len(self._locked), record, cancelled or timed_out)
         if shortfall:
             message = f"{message}. {shortfall}"
         self.panel.finish(message)

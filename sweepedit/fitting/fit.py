@@ -45,6 +45,7 @@ from sweepedit.fitting.losses import (
 from sweepedit.fitting.network import SweepNet
 from sweepedit.fitting.params import ParamLayout
 from sweepedit.fitting.refine import (
+    STOP_REASONS,
     RefineSettings,
     RefineStep,
     ScoringPoints,
@@ -621,7 +622,8 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                    "device": device, "timed_out": clock.timed_out,
                    "stage_seconds": {k: round(v, 3) for k, v in timings.seconds.items()},
                    "fit_iou": None if math.isnan(iou) else round(iou, 6),
-                   "stopped": stopped})
+                   "stopped": stopped,
+                   "stopped_because": STOP_REASONS.get(stopped or "")})
     if settings.auto:
         with timings.measure("scoring"):
             record["agreement"] = round(surface_agreement([*locked, *prims], agreement_target,

@@ -854,6 +854,22 @@ def test_fit_panel_values_become_fit_settings(qtbot) -> None:
     assert (settings.time_limit, settings.method, settings.device) == (12.5, "network", "cpu")
     assert panel.iterations.isEnabled() and panel.method.currentText() == "network (paper)"
     settings.validate()
+    # Auto: the spin box shows the cap (FitSettings' own, copied), the tolerance comes
+    # alive, and the count asked for comes back when auto is off again.
+    from sweepedit.fitting.fit import AUTO_MAX_PRIMITIVES, DEFAULT_TOLERANCE
+
+    panel.primitives.setValue(12)
+    assert not panel.tolerance.isEnabled()
+    panel.auto.setChecked(True)
+    assert panel.tolerance.isEnabled() and panel.primitives.prefix() == "at most "
+    auto = make_settings(FitSettings, panel.values())
+    assert (auto.auto, auto.primitives, auto.tolerance) == (True, AUTO_MAX_PRIMITIVES,
+                                                           DEFAULT_TOLERANCE)
+    panel.tolerance.setValue(0.02)
+    assert make_settings(FitSettings, panel.values()).tolerance == 0.02
+    panel.auto.setChecked(False)
+    assert panel.primitives.value() == 12 and panel.primitives.prefix() == ""
+    assert make_settings(FitSettings, panel.values()).auto is False
     # The progress reports carry what the worker reads from them.
     from dataclasses import fields
 

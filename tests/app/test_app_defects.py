@@ -308,6 +308,40 @@ def test_fewer_primitives_than_asked_is_explained_after_cancel(qtbot, window, sm
     assert window.statusBar().currentMessage().startswith(expected)
 
 
+@pytest.mark.gui
+def test_the_automatic_count_says_why_it_stopped(qtbot, window, small_files,
+                                                 monkeypatch) -> None:
+    """With auto the status says how many the shape took and why the fit stopped adding
+    (the fit record's words)."""
+    from dataclasses import dataclass
+
+    import sweepedit.app.fit_control as fit_control_module
+
+    @dataclass
+    class Settings:
+        primitives: int = 8
+        seed: int = 0
+        auto: bool = False
+        tolerance: float = 0.008
+
+    def auto_fit(shape, settings, *, locked=(), callback=None, cancel=None):
+        assert settings.auto and settings.primitives == 32
+        abstraction = Abstraction([_primitive(0), _primitive(1), _primitive(2)])
+        abstraction.fit = {"stopped": "accurate",
+                           "stopped_because": "the surfaces agree within the tolerance"}
+        return SimpleNamespace(abstraction=abstraction, seconds=0.1)
+
+    monkeypatch.setattr(fit_control_module, "load_fit_api", lambda: (auto_fit, Settings))
+    window.open_path(small_files["obj"])
+    window.fit_panel.auto.setChecked(True)
+    assert window.start_fit(window.fit_panel.values())
+    qtbot.waitUntil(lambda: not window.fitting, timeout=5000)
+    expected = ("Automatic count: 3 primitives (at most 32): the surfaces agree within "
+                "the tolerance.")
+    assert expected in window.fit_panel.status.text()
+    assert window.statusBar().currentMessage() == expected
+
+
 def _other_box(tmp_path: Path) -> Path:
     import trimesh
 

@@ -8,6 +8,7 @@ from typing import Any
 from PySide6.QtCore import Signal
 from PySide6.QtGui import QFont
 from PySide6.QtWidgets import (
+    QCheckBox,
     QComboBox,
     QDoubleSpinBox,
     QFormLayout,
@@ -26,6 +27,10 @@ from sweepedit.app.worker import FitUpdate
 # The fit panel's method choice: (shown text, FitSettings.method).
 FIT_METHODS = (("direct (fast)", "direct"), ("network (paper)", "network"))
 PROGRESS_STEPS = 1000
+# FitSettings' automatic count: the most it may use (AUTO_MAX_PRIMITIVES) and the
+# tolerance (DEFAULT_TOLERANCE), written out: reading them would import torch.
+AUTO_MAX_PRIMITIVES = 32
+DEFAULT_TOLERANCE = 0.008
 
 
 def seconds_text(seconds: float) -> str:
@@ -63,12 +68,28 @@ class FitPanel(QWidget):
         # FitSettings' defaults; not read from it, which would import torch (seconds).
         d = {"primitives": 8, "iterations": 300, "sweeper": "analytic", "seed": 0,
              "restarts": 1, "refine_iterations": None, "method": "direct",
-             "time_limit": None, "device": "auto"}
+             "time_limit": None, "device": "auto", "auto": False,
+             "tolerance": DEFAULT_TOLERANCE}
         d.update(defaults or {})
         self.primitives = QSpinBox()
-        self.primitives.setRange(1, 32)
+        self.primitives.setRange(1, 64)
         self.primitives.setValue(int(d["primitives"]))
-        self.primitives.setToolTip("how many primitives the fit may use (unlocked ones)")
+        self.auto = QCheckBox("auto")
+        self.auto.setToolTip("let the shape decide how many: primitives are added where the "
+                             "shape is missed until the surfaces agree within the tolerance "
+                             "(95% of each within it of the other), up to the number beside")
+        self.tolerance = QDoubleSpinBox()
+        self.tolerance.setRange(0.001, 0.1)
+        self.tolerance.setDecimals(3)
+        self.tolerance.setSingleStep(0.001)
+        self.tolerance.setValue(float(d["tolerance"]))
+        self.tolerance.setToolTip("with auto: how close the surfaces must come, as a share of "
+                                  "the shape's longest side")
+        # The count asked for, kept while auto shows its cap instead.
+        self._fixed_count = int(d["primitives"])
+        self.auto.setChecked(bool(d["auto"]))
+        self._show_count_mode()
+        self.auto.toggled.connect(self._on_auto_toggled)
         self.method = QComboBox()
         for text, method in FIT_METHODS:
             self.method.addItem(text, method)
@@ -133,7 +154,8 @@ class FitPanel(QWidget):
             return layout
 
         form = QFormLayout()
-        form.addRow("Primitives", row(self.primitives, "time limit", self.time_limit))
+        form.addRow("Primitives", row(self.primitives, self.auto, "tolerance", self.tolerance))
+        form.addRow("Time limit", self.time_limit)
         form.addRow("Method", row(self.method, "on", self.device))
         form.addRow("Iterations", row(self.iterations, "refine", self.refine_iterations))
         form.addRow("Sweeper", self.sweeper)
@@ -180,9 +202,28 @@ class FitPanel(QWidget):
         layout.addWidget(self.plot, 1)
         self.set_running(False)
 
+    def _show_count_mode(self) -> None:
+        auto = self.auto.isChecked()
+        self.primitives.setPrefix("at most " if auto else "")
+        self.primitives.setToolTip(
+            "the most primitives the automatic count may use (unlocked ones)" if auto
+            else "how many primitives the fit may use (unlocked ones)")
+
+    def _on_auto_toggled(self, auto: bool) -> None:
+        """The spin box shows the cap with auto and the count asked for without; each
+        is remembered while the other shows."""
+        if auto:
+            self._fixed_count = self.primitives.value()
+            self.primitives.setValue(AUTO_MAX_PRIMITIVES)
+        else:
+            self.primitives.setValue(self._fixed_count)
+        self._show_count_mode()
+        self._enable_inputs()
+
     def values(self) -> dict[str, Any]:
         """The settings as FitSettings fields (make_settings turns them into one)."""
-        return {"primitives": self.primitives.value(), "method": self.method.currentData(),
+        return {"primitives": self.primitives.value(), "auto": self.auto.isChecked(),
+                "tolerance": self.tolerance.value(), "method": self.method.currentData(),
                 "time_limit": self.time_limit.value() or None,
                 "device": self.device.currentText(), "iterations": self.iterations.value(),
                 "refine_iterations": (None if self.refine_iterations.value() < 0
@@ -191,8 +232,9 @@ class FitPanel(QWidget):
                 "restarts": self.restarts.value()}
 
     def _inputs(self) -> tuple[QWidget, ...]:
-        return (self.primitives, self.method, self.time_limit, self.device, self.iterations,
-                self.refine_iterations, self.sweeper, self.seed, self.restarts)
+        return (self.primitives, self.auto, self.tolerance, self.method, self.time_limit,
+                self.device, self.iterations, self.refine_iterations, self.sweeper, self.seed,
+                self.restarts)
 
     def _enable_inputs(self) -> None:
         running = self.cancel_button.isEnabled()
@@ -200,6 +242,7 @@ class FitPanel(QWidget):
             w.setEnabled(not running)
         # Only the network stage has iterations and a choice of sweeper.
         network = self.method.currentData() == "network"
+        self.tolerance.setEnabled(not running and self.auto.isChecked())
         self.iterations.setEnabled(not running and network)
         self.sweeper.setEnabled(not running and network)
 
