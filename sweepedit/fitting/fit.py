@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from sweepedit.analysis.metrics import surface_agreement
+from sweepedit.analysis.metrics import SurfaceAgreement
 from sweepedit.errors import SweepeditError, primitive_label
 from sweepedit.fitting.losses import (
     LossWeights,
@@ -79,7 +79,7 @@ AUTO_MAX_PRIMITIVES = 32
 AUTO_ROUNDS = 6
 AUTO_AGREEMENT = 0.95
 DEFAULT_TOLERANCE = 0.008
-# Shape surface samples the agreement is estimated on.
+# Samples of each surface the agreement is estimated on (analysis.metrics.SurfaceAgreement).
 AGREEMENT_SAMPLES = 8000
 # A fitted primitive gets the simplest layout (fewest control points and scaling terms)
 # that keeps its surface within this of the fitted one (geometry.simplify): a fifth of
@@ -551,11 +551,11 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
 
     accurate = None
     if settings.auto:
-        agreement_target = shape.surface_samples(AGREEMENT_SAMPLES, seed=3)
+        with timings.measure("scoring"):
+            agreement = SurfaceAgreement(shape, settings.tolerance, AGREEMENT_SAMPLES)
 
         def accurate(prims: list[SweepPrimitive]) -> bool:
-            return surface_agreement([*locked, *prims], agreement_target,
-                                     settings.tolerance) >= AUTO_AGREEMENT
+            return agreement([*locked, *prims]) >= AUTO_AGREEMENT
 
     stopped: str | None = None
     best: tuple[float, list[SweepPrimitive], dict[str, float], np.ndarray | None,
@@ -626,8 +626,7 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                    "stopped_because": STOP_REASONS.get(stopped or "")})
     if settings.auto:
         with timings.measure("scoring"):
-            record["agreement"] = round(surface_agreement([*locked, *prims], agreement_target,
-                                                          settings.tolerance), 4)
+            record["agreement"] = round(agreement([*locked, *prims]), 4)
     abstraction.fit = record
     return FitResult(abstraction, seconds, losses, iou, cancel.is_set(), timings.seconds,
                      clock.timed_out, stopped)
