@@ -216,12 +216,20 @@ def test_fused_bracket_search_reports_overflow():
     st = sweeper._stations(params)
     arrays = [st[k].detach().contiguous().numpy() for k in
               ("points", "tangents", "box_lo", "box_hi", "coarse", "reach")]
-    room = [np.empty(4000, dtype=np.int64) for _ in range(3)]
-    total = bracket_kernels.find_brackets(q.numpy(), *arrays, *room)
-    small = [np.full(10, -1, dtype=np.int64) for _ in range(3)]
-    assert bracket_kernels.find_brackets(q.numpy(), *arrays, *small) == total > 10
+    chunks = bracket_kernels.CHUNKS
+    room = [np.empty((chunks, 4000), dtype=np.int64) for _ in range(3)]
+    counts = np.zeros(chunks, dtype=np.int64)
+    bracket_kernels.find_brackets(q.numpy(), *arrays, *room, counts)
+    total = int(counts.sum())
+    small = [np.full((chunks, 10), -1, dtype=np.int64) for _ in range(3)]
+    small_counts = np.zeros(chunks, dtype=np.int64)
+    bracket_kernels.find_brackets(q.numpy(), *arrays, *small, small_counts)
+    np.testing.assert_array_equal(small_counts, counts)
+    assert counts.max() > 10
     for full, part in zip(room, small, strict=True):
-        np.testing.assert_array_equal(part, full[:10])
+        for c in range(chunks):
+            np.testing.assert_array_equal(part[c, :min(counts[c], 10)],
+                                          full[c, :min(counts[c], 10)])
     rows, _, _ = sweeper._brackets(q, st)
     assert len(rows) == total
 

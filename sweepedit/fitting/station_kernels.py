@@ -46,7 +46,7 @@ STEP = 1e-10
 _EPS = 1e-9  # sweepers._EPS: keeps a zero-length segment's arc length finite
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def station_geometry(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, t: np.ndarray,
                      margin: float, geometry: np.ndarray, points: np.ndarray,
                      tangents: np.ndarray) -> None:
@@ -58,10 +58,10 @@ def station_geometry(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, t: np.ndarr
     points and tangents (E, S + 2, 3) of the extended stations."""
     n_axes, n_t = p0.shape[0], t.shape[0]
     m = p0.shape[1]
-    frames = np.empty((n_t + 2, 9))  # T, U, V at each extended station
-    arc = np.empty(n_t + 2)
-    start = np.empty((m, 13))
-    for e in range(n_axes):
+    for e in numba.prange(n_axes):  # the axes are independent: shared over the threads
+        frames = np.empty((n_t + 2, 9))  # T, U, V at each extended station
+        arc = np.empty(n_t + 2)
+        start = np.empty((m, 13))
         segment_start_frames(p0[e], p1[e], p2[e], start)
         length = 0.0
         for s in range(n_t):

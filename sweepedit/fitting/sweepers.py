@@ -281,13 +281,17 @@ def _find_brackets_fused(q: torch.Tensor, st: dict[str, torch.Tensor]
     arrays = [st[k].detach().contiguous().numpy() for k in
               ("points", "tangents", "box_lo", "box_hi", "coarse", "reach")]
     queries = q.detach().contiguous().numpy()
-    capacity = 4 * q.shape[0] * q.shape[1]  # most (primitive, query) pairs cross 0-2 planes
+    # Most (primitive, query) pairs cross 0-2 planes; a run holds up to ceil(N / CHUNKS)
+    # primitives.
+    capacity = 4 * -(-q.shape[0] // kernels.CHUNKS) * q.shape[1]
+    counts = np.zeros(kernels.CHUNKS, dtype=np.int64)
     while True:
-        found = [np.empty(capacity, dtype=np.int64) for _ in range(3)]
-        count = kernels.find_brackets(queries, *arrays, *found)
-        if count <= capacity:
-            return tuple(torch.from_numpy(a[:count]) for a in found)  # type: ignore[return-value]
-        capacity = count
+        found = [np.empty((kernels.CHUNKS, capacity), dtype=np.int64) for _ in range(3)]
+        kernels.find_brackets(queries, *arrays, *found, counts)
+        if counts.max() <= capacity:
+            return tuple(torch.from_numpy(np.concatenate(  # type: ignore[return-value]
+                [a[c, :counts[c]] for c in range(kernels.CHUNKS)])) for a in found)
+        capacity = int(counts.max())
 
 
 def _bracket_occupancy(table: torch.Tensor, queries: torch.Tensor, flat: torch.Tensor,
