@@ -518,8 +518,12 @@ def _add_fit_options(p: argparse.ArgumentParser, iterations: int) -> None:
     p.add_argument("--surface-weight", type=float, default=1.0,
                    help="weight of surface coverage against IoU when refining; higher "
                         "spends primitives on thin parts (1.0)")
-    p.add_argument("--control-points", type=int, default=3, help="per axis (3)")
-    p.add_argument("--scaling-degree", type=int, default=2, help="of f(t) (2)")
+    p.add_argument("--control-points", type=int, default=8,
+                   help="the most per axis; each primitive keeps the fewest (down to 3) "
+                        "that hold its surface within 0.002 (8)")
+    p.add_argument("--scaling-degree", type=int, default=3,
+                   help="the most terms of f(t); each primitive keeps the fewest (down to "
+                        "2) that hold its surface (3)")
 
 
 def _add_batch_options(p: argparse.ArgumentParser) -> None:

@@ -215,7 +215,7 @@ def test_fused_bracket_search_reports_overflow():
     q = _near_queries(params[0], 500, seed=6)[None].expand(2, -1, -1).contiguous()
     st = sweeper._stations(params)
     arrays = [st[k].detach().contiguous().numpy() for k in
-              ("points", "tangents", "box_lo", "box_hi", "coarse", "reach")]
+              ("points", "tangents", "box_lo", "box_hi", "coarse", "reach", "bracket_reach2")]
     chunks = bracket_kernels.CHUNKS
     room = [np.empty((chunks, 4000), dtype=np.int64) for _ in range(3)]
     counts = np.zeros(chunks, dtype=np.int64)

@@ -215,12 +215,16 @@ def _backward_one(table: np.ndarray, queries: np.ndarray, flat: np.ndarray,
 @numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def find_brackets(queries: np.ndarray, points: np.ndarray, tangents: np.ndarray,
                   box_lo: np.ndarray, box_hi: np.ndarray, coarse: np.ndarray,
-                  reach: np.ndarray, rows: np.ndarray, pairs: np.ndarray,
-                  brackets: np.ndarray, counts: np.ndarray) -> None:
+                  reach: np.ndarray, bracket_reach2: np.ndarray, rows: np.ndarray,
+                  pairs: np.ndarray, brackets: np.ndarray, counts: np.ndarray) -> None:
     """AnalyticSweeper._brackets as one loop: for each primitive n and query j of
     queries (N, Q, 3) inside box_lo..box_hi (N, 3) and within reach (N,) of one of the
     coarse stations (N, C, 3), every bracket [i, i+1] of the stations points, tangents
-    (N, S, 3) where h = (q - s_i).T_i changes sign (or touches 0). The primitives are
+    (N, S, 3) where h = (q - s_i).T_i changes sign (or touches 0) and the query lies
+    within bracket_reach2 (N, S - 1) (squared) of one of its two stations: farther, its
+    occupancy there is below sigmoid(-sweepers.CULL), as beyond the coarse stations' reach
+    (a curved axis's planes pass through queries far from it: sixteen brackets a query for
+    8 primitives of 8 control points, most of them far). The primitives are
     cut into CHUNKS runs (chunk_bounds), one a thread at a time: run c writes n,
     n * Q + j and i to row c of rows, pairs, brackets (CHUNKS, V) and how many it found
     to counts[c]; when more than V, only the first V are written and the caller asks
@@ -257,6 +261,15 @@ def find_brackets(queries: np.ndarray, points: np.ndarray, tangents: np.ndarray,
                     h[s] = x * t_x[s] + y * t_y[s] + z * t_z[s] - offsets[s]
                 for s in range(n_stations - 1):
                     if h[s] * h[s + 1] <= 0.0:
+                        d0x = x - points[n, s, 0]
+                        d0y = y - points[n, s, 1]
+                        d0z = z - points[n, s, 2]
+                        d1x = x - points[n, s + 1, 0]
+                        d1y = y - points[n, s + 1, 1]
+                        d1z = z - points[n, s + 1, 2]
+                        if min(d0x * d0x + d0y * d0y + d0z * d0z,
+                               d1x * d1x + d1y * d1y + d1z * d1z) > bracket_reach2[n, s]:
+                            continue
                         if count < capacity:
                             rows[c, count] = n
                             pairs[c, count] = n * n_queries + j

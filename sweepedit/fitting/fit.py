@@ -110,8 +110,12 @@ class FitSettings:
     sweeper: str = "analytic"
     seed: int = 0
     restarts: int = 1
-    control_points: int = 3
-    scaling_degree: int = 2
+    # The layout every primitive is fitted in: axes of up to `control_points` control
+    # points (long curved parts need more than a quadratic Bezier's three) and scaling
+    # of up to `scaling_degree` terms; each result then gets the simplest layout within
+    # SIMPLIFY_TOLERANCE of its surface (3 and 2 where that is enough).
+    control_points: int = 8
+    scaling_degree: int = 3
     batch_points: int = 4096
     learning_rate: float = 3e-4
     # The analytic sweeper's sharpness while fitting (1/length): softer than its default
@@ -141,6 +145,10 @@ class FitSettings:
     # Weight of the shell accuracy (where the union's boundary lies, to SHELL_OFFSET)
     # against IoU in the refinement score.
     shell_weight: float = 1.0
+    # Weight of the fold penalty (losses.fold_loss) against refinement's cross-entropy:
+    # keeps the axes from bending far tighter than the profile's reach, where a sweep
+    # folds onto itself and grows fins.
+    fold_weight: float = 1.0
     # Seconds for the whole fit (None: no limit): the best abstraction found by then is
     # returned, never an empty one.
     time_limit: float | None = None
@@ -187,6 +195,7 @@ class FitSettings:
             (0.0 <= self.min_gain < 1.0, "min gain must be in [0, 1)"),
             (self.surface_weight >= 0.0, "surface weight must be >= 0"),
             (self.shell_weight >= 0.0, "shell weight must be >= 0"),
+            (self.fold_weight >= 0.0, "fold weight must be >= 0"),
             (self.restarts >= 1, "restarts must be at least 1"),
             (self.control_points >= 3, "control points must be at least 3"),
             (self.scaling_degree >= 0, "scaling degree must be >= 0"),
@@ -253,10 +262,15 @@ def resolve_device(name: str) -> str:
 
 
 def configure_threads() -> None:
-    """Torch's CPU threads: one per core this process may use (a worker pinned to some
-    cores, as a batch scheduler does, gets that many rather than the machine's count,
-    so that two fits never fight over one core). Honours OMP_NUM_THREADS when set."""
+    """Torch's and the compiled loops' (numba's) CPU threads: one per core this process
+    may use (a worker pinned to some cores, as a batch scheduler does, gets that many
+    rather than the machine's count, so that two fits never fight over one core).
+    Honours OMP_NUM_THREADS when set."""
+    import numba
+
     if "OMP_NUM_THREADS" in os.environ:
+        numba.set_num_threads(max(1, min(torch.get_num_threads(),
+                                         numba.config.NUMBA_NUM_THREADS)))
         return
     try:
         cores = len(os.sched_getaffinity(0))
@@ -264,6 +278,7 @@ def configure_threads() -> None:
         cores = os.cpu_count() or 1
     if torch.get_num_threads() != cores:
         torch.set_num_threads(cores)
+    numba.set_num_threads(max(1, min(cores, numba.config.NUMBA_NUM_THREADS)))
 
 
 class _Clock:
@@ -516,7 +531,7 @@ def fit_abstraction(shape: Shape, settings: FitSettings | None = None, *,
                             min_gain=settings.keep_gain,
                             residual_rounds=settings.rounds if steps else 0,
                             residual_iterations=steps // 2, device=device,
-                            steps_per_8=settings.auto)
+                            steps_per_8=settings.auto, fold_weight=settings.fold_weight)
     network_steps = settings.iterations if settings.method == "network" else 0
     per_restart = network_steps + refine.total_steps(max(settings.primitives // 2, 8))
     total_iterations = per_restart * settings.restarts

@@ -48,6 +48,10 @@ RESOURCES = Path(__file__).resolve().parents[1] / "resources"  # package data
 NEURAL_WEIGHTS = RESOURCES / "sweeper_neural.pt"
 
 _EPS = 1e-9
+# Queries farther than CULL / sharpness beyond a primitive's reach have occupancy below
+# sigmoid(-CULL) = 6e-6 there: they are not evaluated (occupancy 0). The fits' cross-
+# entropy clamps the union at 1e-5, so such values barely reach the loss or its gradient.
+CULL = 12.0
 # Columns of AnalyticSweeper's per-bracket table: an affine map (4 x 6), then 8 scalars.
 _TABLE_WIDTH = 32
 
@@ -199,14 +203,21 @@ class AnalyticSweeper(Sweeper):
             pts, f, profile = pts.detach(), f.detach(), profile.detach()
             seg = torch.sqrt(((pts[:, 2:-1] - pts[:, 1:-2]) ** 2).sum(-1) + _EPS ** 2)
             radius = f.abs().amax(dim=1) * torch.sqrt(profile[:, 0] ** 2 + profile[:, 1] ** 2)
-            pad = radius + seg.amax(dim=1) + 12.0 / self.sharpness
+            pad = radius + seg.amax(dim=1) + CULL / self.sharpness
             # Coarse stations (every 4th, both ends included) for a cheap distance cull: a
             # query farther than `reach` from all of them has occupancy < sigmoid(-12).
             coarse = torch.cat([pts[:, :-1:4], pts[:, -1:]], dim=1)
             coarse_gap = torch.sqrt(((coarse[:, 1:] - coarse[:, :-1]) ** 2).sum(-1)).amax(dim=1)
+            # Per bracket: how near one of its two stations a query must be for its
+            # occupancy there to reach sigmoid(-CULL) (bracket_reach2).
+            ends = table[:, :, 24:26].detach().abs().amax(dim=-1)  # f at both stations
+            legs = torch.sqrt(((pts[:, 1:] - pts[:, :-1]) ** 2).sum(-1))
+            bracket_reach = (ends * torch.sqrt(profile[:, :1] ** 2 + profile[:, 1:2] ** 2)
+                             + legs + CULL / self.sharpness)
         return {"table": table, "bend": bend, "points": pts, "tangents": tangents,
                 "box_lo": pts.amin(dim=1) - pad[:, None], "box_hi": pts.amax(dim=1) + pad[:, None],
-                "coarse": coarse, "reach": pad + coarse_gap}
+                "coarse": coarse, "reach": pad + coarse_gap,
+                "bracket_reach2": bracket_reach * bracket_reach}
 
     def _station_table(self, cps: torch.Tensor, profile: torch.Tensor, scaling: torch.Tensor,
                        margin: float) -> tuple[torch.Tensor, ...]:
@@ -270,7 +281,13 @@ class AnalyticSweeper(Sweeper):
         h = torch.baddbmm(-offs[:, None], q, tan.transpose(1, 2)).flatten(0, 1).index_select(
             0, pairs)  # (R, S+2)
         hit, bracket = torch.nonzero((h[:, :-1] * h[:, 1:]) <= 0.0, as_tuple=True)
-        return rows.index_select(0, hit), pairs.index_select(0, hit), bracket
+        rows, pairs = rows.index_select(0, hit), pairs.index_select(0, hit)
+        # Only brackets within reach of a query (bracket_reach2).
+        qs = q.reshape(-1, 3).index_select(0, pairs)
+        d2 = torch.minimum(((qs - pts[rows, bracket]) ** 2).sum(-1),
+                           ((qs - pts[rows, bracket + 1]) ** 2).sum(-1))
+        near = d2 <= st["bracket_reach2"].detach()[rows, bracket]
+        return rows[near], pairs[near], bracket[near]
 
 
 def _find_brackets_fused(q: torch.Tensor, st: dict[str, torch.Tensor]
@@ -279,7 +296,7 @@ def _find_brackets_fused(q: torch.Tensor, st: dict[str, torch.Tensor]
     from sweepedit.fitting import bracket_kernels as kernels
 
     arrays = [st[k].detach().contiguous().numpy() for k in
-              ("points", "tangents", "box_lo", "box_hi", "coarse", "reach")]
+              ("points", "tangents", "box_lo", "box_hi", "coarse", "reach", "bracket_reach2")]
     queries = q.detach().contiguous().numpy()
     # Most (primitive, query) pairs cross 0-2 planes; a run holds up to ceil(N / CHUNKS)
     # primitives.
