@@ -128,12 +128,12 @@ def test_usage_errors_exit_2(tmp_path: Path, capsys) -> None:
     file_out = tmp_path / "file"
     file_out.write_text("x")
     assert main(["batch", str(CACTUS), "-o", str(file_out), *FAST]) == 2
-    assert main(["batch", str(CACTUS), "-o", str(tmp_path / "o"), "-k", "0"]) == 2
     assert main(["batch", str(CACTUS), "-o", str(tmp_path / "o"), "--gpus-per-task", "-1"]) == 2
     assert "GPUs per task" in capsys.readouterr().err
-    with pytest.raises(SystemExit) as exc:
-        main(["batch", str(CACTUS), "-o", str(tmp_path / "o"), "--workers", "0"])
-    assert exc.value.code == 2
+    for bad in (["--workers", "0"], ["-k", "0"]):  # argparse's usage errors
+        with pytest.raises(SystemExit) as exc:
+            main(["batch", str(CACTUS), "-o", str(tmp_path / "o"), *bad])
+        assert exc.value.code == 2
 
 
 # --------------------------------------------------------------------------- in process

@@ -155,10 +155,9 @@ class FitPanel(QWidget):
 
         form = QFormLayout()
         form.addRow("Primitives", row(self.primitives, self.auto, "tolerance", self.tolerance))
-        form.addRow("Time limit", self.time_limit)
         form.addRow("Method", row(self.method, "on", self.device))
         form.addRow("Iterations", row(self.iterations, "refine", self.refine_iterations))
-        form.addRow("Sweeper", self.sweeper)
+        form.addRow("Sweeper", row(self.sweeper, "time limit", self.time_limit))
         form.addRow("Seed", row(self.seed, "restarts", self.restarts))
 
         self.start_button = QPushButton("Start fit")
