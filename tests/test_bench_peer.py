@@ -200,3 +200,32 @@ def test_the_port_on_a_ball(bp, tmp_path):
     sqs = [bp.Superquadric.from_params(p) for p in record["superquadrics"]]
     m = bp.score_superquadrics(sqs, load_shape(path), n_samples=20_000)
     assert m["iou"] > 0.95 and m["f1_0.05"] > 0.99
+
+
+def test_peer_table_means_counts_and_shared_shapes(tmp_path: Path) -> None:
+    """peer_table.py: means over the shapes both sides fitted, the median count, and the
+    share of shapes with fewer primitives than the peer, from a bench JSON and a CSV."""
+    import csv
+    import json
+
+    spec = importlib.util.spec_from_file_location("peer_table", BENCH.with_name("peer_table.py"))
+    pt = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(pt)
+    peer = tmp_path / "peer.csv"
+    with peer.open("w", newline="") as f:
+        w = csv.DictWriter(f, ["label", "method", "shape", "status", "n_primitives", "iou",
+                               "cd_l1", "f1_0.05", "f1_0.01", "whole_seconds"])
+        w.writeheader()
+        for shape, n, iou in (("a", 10, 0.9), ("b", 20, 0.8), ("c", 5, 0.7)):
+            w.writerow({"label": "x", "method": "mp", "shape": shape, "status": "ok",
+                        "n_primitives": n, "iou": iou, "cd_l1": 0.005, "f1_0.05": 1.0,
+                        "f1_0.01": 0.9, "whole_seconds": 3.0})
+    ours = tmp_path / "ours.json"
+    rows = [{"shape": s, "metrics": {"iou": iou, "cd_l1": 0.004, "f1_0.05": 0.99,
+                                     "f1_0.01": 0.95, "n_primitives": n, "seconds": 2.0}}
+            for s, n, iou in (("a", 8, 1.0), ("b", 30, 0.6), ("d", 1, 0.1))]
+    ours.write_text(json.dumps({"rows": rows}))
+    text = pt.table(pt.read_rows(peer, "mp"), [("us", pt.read_rows(ours, "sweepedit"))])
+    us, mp = (line for line in text.splitlines() if line.startswith(("| us", "| Marching")))
+    assert us == "| us | 2 | 0.800 | 0.0040 | 0.990 | 0.950 | 19 | 1 of 2 (50%) |"
+    assert mp == "| Marching-Primitives | 3 | 0.800 | 0.0050 | 1.000 | 0.900 | 10 |  |"

@@ -12,6 +12,7 @@ from sweepedit.fitting.losses import (
     LossWeights,
     axis_chamfer_loss,
     boltzmann_union,
+    outside_axis_loss,
     overlap_loss,
     parsimony_loss,
     reconstruction_loss,
@@ -149,3 +150,29 @@ def test_fold_loss_is_positive_exactly_where_the_sweep_folds() -> None:
         assert (loss > 0.0) == folds, (margin, loss)
         seen[folds] += 1
     assert seen[True] >= 5 and seen[False] >= 5
+
+
+def test_outside_axis_loss_is_the_distance_beyond_the_margin() -> None:
+    """A box of cells; points inside it cost nothing, points 10 and 11 cells beyond a face
+    cost that distance less the margin, and their gradient points away from the box."""
+    from scipy import ndimage as ndi
+
+    res = 64
+    occupancy = np.zeros((res, res, res), dtype=bool)
+    occupancy[10:30, 20:40, 30:50] = True
+    outside = torch.as_tensor(ndi.distance_transform_edt(~occupancy) / res)
+
+    def centre(*index: int) -> list[float]:
+        return [(i + 0.5) / res - 0.5 for i in index]
+
+    axes = torch.tensor([[centre(20, 30, 40), centre(39, 30, 40), centre(20, 50, 40),
+                          centre(20, 30, 60)]], dtype=torch.float64, requires_grad=True)
+    margin = 2.0 / res
+    loss = outside_axis_loss(axes, outside, margin)
+    beyond = np.array([0.0, 10.0, 11.0, 11.0]) / res
+    want = np.mean(np.maximum(beyond - margin, 0.0))
+    assert float(loss.detach()) == pytest.approx(want, rel=1e-6)
+    loss.backward()
+    grad = axes.grad[0].numpy() * 4  # d loss / d point, times the 4 points of the mean
+    np.testing.assert_allclose(grad, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], atol=1e-9)
+    assert float(outside_axis_loss(axes[:, :1], outside, margin)) == 0.0

@@ -269,3 +269,29 @@ def test_shell_accuracy_sees_a_boundary_off_by_more_than_the_offset(tmp_path) ->
     assert accuracy[1 / 3 + 0.01] == pytest.approx(1.0 - side / 2, abs=0.03)
     # The IoU counts the cells and samples only.
     assert points.n_labelled == len(points.points) - 6000
+
+
+def test_a_thin_tail_outside_the_shape_is_drawn_back_by_the_axis_term() -> None:
+    """A sweep along BAR_X whose axis runs on 0.12 beyond the bar's end while its scaling
+    thins it to under a cell there: no cell centre lies in the tail, so the cross-entropy
+    leaves it where it is; with the axis term the axis comes back within the shape."""
+    points = truth_points([BAR_X])
+    outside = points.outside_distance()
+    start = SweepPrimitive([[-0.35, 0.0, 0.0], [0.06, 0.0, 0.0], [0.47, 0.0, 0.0]],
+                           a=0.06, b=0.06, scaling=(-0.5, -0.4))
+    t = np.linspace(0.0, 1.0, 65)
+    layout = ParamLayout(3, 2)
+
+    def farthest(settings: RefineSettings) -> float:
+        got = refine_primitives([start], layout, points, settings, seed=0).primitives[0]
+        axis = torch.as_tensor(got.control_points[None])
+        from sweepedit.geometry.sweep import axis_points
+
+        pts = axis_points(axis, torch.as_tensor(t)).numpy()[0]
+        index = np.clip(((pts + 0.5) * RES).astype(int), 0, RES - 1)
+        return float(outside[index[:, 0], index[:, 1], index[:, 2]].max())
+
+    plain = RefineSettings(iterations=120, residual_rounds=0)
+    assert farthest(plain) > 2.5 / RES  # the tail stays out
+    assert farthest(RefineSettings(iterations=120, residual_rounds=0, axis_weight=5.0)) \
+        <= 1.5 / RES

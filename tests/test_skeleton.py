@@ -193,3 +193,26 @@ def test_render_abstraction_and_contact_sheet(tmp_path):
     for out in (one, sheet):
         assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "cyl.off", "sheet.png"]
+
+
+def test_contact_sheet_draws_a_shape_thinner_than_its_coarse_grid(tmp_path):
+    """bench's sheet loads shapes on a coarse grid; a blade 0.03 thick (fitted on the
+    64^3 grid) has no coarse cell inside it, and the sheet must still be drawn."""
+    pytest.importorskip("pyvista")
+    import trimesh
+
+    from sweepedit.errors import DegenerateShapeError
+    from sweepedit.fitting.bench import _SHEET_RESOLUTION, contact_sheet
+    from sweepedit.geometry.model import Abstraction, SweepPrimitive
+    from sweepedit.io.params import write_abstraction
+    from sweepedit.io.shapes import load_shape
+
+    path = tmp_path / "blade.stl"
+    trimesh.creation.box(extents=(1.0, 0.2, 0.03)).export(path)
+    with pytest.raises(DegenerateShapeError):
+        load_shape(path, resolution=_SHEET_RESOLUTION, n_samples=200)
+    params = tmp_path / "blade.json"
+    write_abstraction(Abstraction([SweepPrimitive([[-0.45, 0, 0], [0, 0, 0], [0.45, 0, 0]],
+                                                  a=0.1, b=0.015)]), params)
+    out, tiles = contact_sheet([("blade", path, params)], tmp_path / "sheet.png")
+    assert tiles == 1 and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -13,9 +13,14 @@ import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from sweepedit.errors import DegenerateShapeError
 from sweepedit.fitting.fit import FitSettings
 from sweepedit.io.params import atomic_write_text
+
+if TYPE_CHECKING:
+    from sweepedit.io.shapes import Shape
 
 COLUMNS = ("iou", "cd_l1", "f1_0.05", "f1_0.01", "n_primitives", "seconds")
 # Grid and samples of a shape loaded only to be drawn under its abstraction.
@@ -125,13 +130,22 @@ def contact_sheet(items: Sequence[tuple[str, Path, Path]], path_png: str | Path,
     Returns the path and the number of tiles drawn."""
     from sweepedit.analysis.render import render_contact_sheet
     from sweepedit.io.params import read_abstraction
-    from sweepedit.io.shapes import load_shape
-
     chosen = list(items)
     if max_tiles is not None and len(chosen) > max_tiles:
         step = len(chosen) / max_tiles
         chosen = [chosen[int(i * step)] for i in range(max_tiles)]
-    # A coarse load is enough to draw the shape's surface (its grids are not used).
-    tiles = [(name, load_shape(shape, resolution=_SHEET_RESOLUTION, n_samples=_SHEET_SAMPLES),
-              read_abstraction(params)) for name, shape, params in chosen]
+    tiles = [(name, _sheet_shape(shape), read_abstraction(params))
+             for name, shape, params in chosen]
     return render_contact_sheet(tiles, path_png), len(tiles)
+
+
+def _sheet_shape(path: Path) -> Shape:
+    """The shape to draw under a tile. A coarse load is enough to draw its surface (its
+    grids are not used); a shape thinner than a coarse cell, which the coarse grid calls
+    degenerate, is loaded at the fit's resolution instead (it was fitted at that one)."""
+    from sweepedit.io.shapes import load_shape
+
+    try:
+        return load_shape(path, resolution=_SHEET_RESOLUTION, n_samples=_SHEET_SAMPLES)
+    except DegenerateShapeError:
+        return load_shape(path, n_samples=_SHEET_SAMPLES)

@@ -16,6 +16,9 @@ BOLTZMANN_ALPHA = 40.0
 # shapes at K = 8 (8 control points): no penalty, a median primitive reached 11.8 and
 # F1@0.01 was 0.908; limit 0.9, 1.3 and 0.890; limit 1.5, 1.9 and 0.898.
 FOLD_LIMIT = 1.5
+# How far an axis may stray outside the shape before outside_axis_loss counts it: one
+# cell of the 64^3 grid, the resolution of the distance it is measured by.
+AXIS_MARGIN = 1.0 / 64
 
 
 @dataclass(frozen=True)
@@ -105,3 +108,22 @@ def fold_loss(bend: torch.Tensor, scale: torch.Tensor, profile: torch.Tensor,
     p = d / (d - 1.0)
     reach = ((a * q[..., 0]).abs() + 1e-12) ** p + ((b * q[..., 1]).abs() + 1e-12) ** p
     return torch.mean(torch.relu(reach ** (1.0 / p) - limit) ** 2)
+
+
+def outside_axis_loss(axes: torch.Tensor, outside: torch.Tensor,
+                      margin: float = AXIS_MARGIN) -> torch.Tensor:
+    """Mean excess over `margin` of the distance from the shape to the axes' points.
+
+    axes (K, S, 3): points along each axis, in the normalised frame; outside (R, R, R):
+    each cell centre's distance to the shape in normalised units (0 inside), indexed
+    [ix, iy, iz] over [-0.5, 0.5]^3, read between centres trilinearly. Where a sweep's
+    tail leaves the shape thinner than a cell, no cell centre and hardly a sample lies
+    inside it, so the cross-entropy has nothing to pull it back with; its axis does.
+    """
+    K, S, _ = axes.shape
+    # grid_sample reads (x, y, z) as (W, H, D): the last index first.
+    where = (2.0 * axes).flip(-1).reshape(1, 1, 1, K * S, 3)
+    grid = outside.to(axes.dtype)[None, None]
+    distance = torch.nn.functional.grid_sample(grid, where, mode="bilinear",
+                                               padding_mode="border", align_corners=False)
+    return torch.mean(torch.relu(distance.reshape(K, S) - margin))

@@ -57,13 +57,13 @@ from threadpoolctl import threadpool_limits
 
 from sweepedit.analysis.metrics import iou
 from sweepedit.analysis.skeleton import compute_skeleton
-from sweepedit.fitting.losses import boltzmann_union, fold_loss
+from sweepedit.fitting.losses import boltzmann_union, fold_loss, outside_axis_loss
 from sweepedit.fitting.params import ParamLayout
 from sweepedit.fitting.sweepers import AnalyticSweeper
 from sweepedit.fitting.warmstart import warm_start_primitives
 from sweepedit.geometry.inside import T_SAMPLES, grid_points, inside_primitives, inside_union
 from sweepedit.geometry.model import SweepPrimitive
-from sweepedit.geometry.sweep import scaling_factor
+from sweepedit.geometry.sweep import axis_points, scaling_factor
 
 # How near (normalised units) a point of the union must be for a surface sample to count
 # as covered: within F1@0.05's threshold, so a limb must be followed, not just neared.
@@ -115,6 +115,11 @@ class RefineSettings:
     # Weight of losses.fold_loss against the cross-entropy: keeps the axes from bending
     # tighter than the profile's reach, where a sweep folds onto itself.
     fold_weight: float = 0.0
+    # Weight of losses.outside_axis_loss against the cross-entropy: keeps each axis
+    # within the shape, where the grid cannot see a thin tail.
+    axis_weight: float = 0.0
+    # Points per axis that outside_axis_loss measures.
+    axis_samples: int = 32
 
     # Steps of each pass for 8 primitives, and more for more (pass_steps); else as set.
     steps_per_8: bool = False
@@ -167,6 +172,7 @@ class ScoringPoints:
                        else np.zeros(len(self.points), dtype=bool))
         self.surface_weight = surface_weight if surface is not None and len(surface) else 0.0
         self._target_bands: dict[int, np.ndarray] = {}
+        self._outside: np.ndarray | None = None
         self.reach_matrix = (_reach_matrix(np.asarray(surface, dtype=np.float64),
                                            self.points[: self.n_labelled], reach)
                              if self.surface_weight else None)
@@ -222,6 +228,20 @@ class ScoringPoints:
             return 1.0
         n = self.n_labelled
         return float(np.mean((covered | self.locked)[n:] == self.labels[n:]))
+
+    def outside_distance(self) -> np.ndarray:
+        """(R, R, R) float: each cell centre's distance to the nearest cell of the shape,
+        in normalised units (0 inside). The shape's cells are those inside it and those
+        holding a sample labelled inside: a limb thinner than a cell covers no cell
+        centre, and its axis must not count as outside."""
+        if self._outside is None:
+            shape = self.grid_target.copy()
+            inside = self.points[self.n_cells:][self.labels[self.n_cells:]]
+            index = np.clip(np.floor((inside + 0.5) * self.resolution).astype(np.int64), 0,
+                            self.resolution - 1)
+            shape[index[:, 0], index[:, 1], index[:, 2]] = True
+            self._outside = ndi.distance_transform_edt(~shape) / self.resolution
+        return self._outside
 
     def grid_iou(self, covered: np.ndarray) -> float:
         """IoU on the grid cells alone (docs/quality.md) of covered (N,) bool."""
@@ -525,6 +545,11 @@ def _optimise(prims: list[SweepPrimitive], layout: ParamLayout, points: ScoringP
     band = points.boundary_cells(covered, settings.band)
     stale = 0
     loss = torch.zeros(())
+    outside = axis_t = None
+    if settings.axis_weight:
+        outside = torch.as_tensor(points.outside_distance(), dtype=torch.float32,
+                                  device=device)
+        axis_t = torch.linspace(0.0, 1.0, settings.axis_samples, device=device)
     for step in range(iterations):
         if stop():
             break
@@ -536,7 +561,7 @@ def _optimise(prims: list[SweepPrimitive], layout: ParamLayout, points: ScoringP
                                     + rng.integers(0, n_samples, settings.samples)])
         idx = torch.as_tensor(index, device=device)
         loss = _step_loss(sweeper, layout, logits, all_points[idx], all_labels[idx], locked[idx],
-                          settings.fold_weight)
+                          settings.fold_weight, settings.axis_weight, outside, axis_t)
         logits.grad = None
         loss.backward()
         if bool(torch.isfinite(loss) & torch.isfinite(logits.grad).all()):
@@ -598,9 +623,12 @@ class Adam:
 
 def _step_loss(sweeper: AnalyticSweeper, layout: ParamLayout, logits: torch.Tensor,
                queries: torch.Tensor, labels: torch.Tensor, locked: torch.Tensor,
-               fold_weight: float = 0.0) -> torch.Tensor:
+               fold_weight: float = 0.0, axis_weight: float = 0.0,
+               outside: torch.Tensor | None = None,
+               axis_t: torch.Tensor | None = None) -> torch.Tensor:
     """BCE of the soft union (locked primitives as a fixed member) at queries (Q, 3),
-    plus fold_weight times the primitives' fold_loss."""
+    plus fold_weight times the primitives' fold_loss, plus axis_weight times their
+    outside_axis_loss at axis_t (S,) against the shape's outside (R, R, R) distance."""
     params = layout.from_unconstrained(logits)  # (K, P)
     occupancy, bend = sweeper.occupancy_and_bend(params[None], queries[None])  # (1, K, Q)
     occupancy = torch.cat([occupancy, locked[None, None]], dim=1)
@@ -613,6 +641,10 @@ def _step_loss(sweeper: AnalyticSweeper, layout: ParamLayout, logits: torch.Tens
                                   device=params.device)
         loss = loss + fold_weight * fold_loss(bend[0], scaling_factor(scaling, stations),
                                               profile)
+    if axis_weight and outside is not None and axis_t is not None:
+        control_points = layout.split(params)[0]
+        loss = loss + axis_weight * outside_axis_loss(axis_points(control_points, axis_t),
+                                                      outside)
     return loss
 
 
