@@ -8,6 +8,7 @@ torch.autograd.gradcheck (finite differences), and shape/range contracts.
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -326,3 +327,48 @@ def test_fused_kernels_do_not_raise_on_degenerate_rows():
     bracket_kernels.occupancy_backward(table, queries, index, index, 100.0, occupancy, saved,
                                        np.ones(1, dtype=np.float32), *grads, True)
     assert not np.isfinite(occupancy).all()
+
+
+class _Planted:
+    """Unpickling this runs Path.touch on the marker: what a planted checkpoint would do."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+def test_a_checkpoint_resumes_and_a_planted_one_runs_nothing(tmp_path: Path) -> None:
+    """train-sweeper --resume reads checkpoints with torch's weights-only loader: a real
+    one (a network and Adam after a step) comes back equal; one that would run code on
+    unpickling is refused with the file named, and the code never runs."""
+    import pickle
+
+    from sweepedit.errors import FileFormatError
+    from sweepedit.fitting.sweepers import build_neural
+    from sweepedit.training.train import _save_atomic, load_checkpoint
+
+    net = build_neural({"latent": 8, "value": 8, "hidden": 16})
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    sum(p.sum() for p in net.parameters()).backward()
+    opt.step()
+    path = tmp_path / "run.ckpt"
+    _save_atomic({"model": net.state_dict(), "optimizer": opt.state_dict(), "step": 7,
+                  "seconds": 1.5, "config": {"latent": 8, "lr": 1e-3}}, path)
+    ck = load_checkpoint(path)
+    assert ck["step"] == 7 and ck["config"] == {"latent": 8, "lr": 1e-3}
+    for k, v in net.state_dict().items():
+        assert torch.equal(ck["model"][k], v)
+    torch.optim.Adam(net.parameters(), lr=1e-3).load_state_dict(ck["optimizer"])
+
+    marker = tmp_path / "ran"
+    planted = tmp_path / "planted.ckpt"
+    torch.save({"model": {}, "optimizer": {}, "step": _Planted(marker)}, planted)
+    with pytest.raises(FileFormatError, match=r"planted\.ckpt"):
+        load_checkpoint(planted)
+    raw = tmp_path / "raw.ckpt"
+    raw.write_bytes(pickle.dumps(_Planted(marker), protocol=2))
+    with pytest.raises(FileFormatError, match=r"raw\.ckpt"):
+        load_checkpoint(raw)
+    assert not marker.exists()

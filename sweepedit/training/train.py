@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from torch.nn.functional import binary_cross_entropy_with_logits
 
+from sweepedit.errors import FileFormatError
 from sweepedit.fitting.sweepers import NEURAL_WEIGHTS, NeuralSweeper, build_neural
 from sweepedit.geometry.inside import inside_primitive
 from sweepedit.geometry.model import SweepPrimitive
@@ -250,6 +251,22 @@ def _save_atomic(obj: Any, path: Path) -> None:
     tmp.replace(path)
 
 
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    """A training checkpoint (model, optimizer, step, seconds, config) from path, read
+    with torch's weights-only loader: tensors and plain containers only, so a planted
+    file cannot run code while it is unpickled. Raises FileFormatError naming the file."""
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises UnpicklingError, RuntimeError, EOFError...
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise FileFormatError(path, "not a sweepedit training checkpoint, or one holding more "
+                                    f"than tensors and plain values ({first})") from exc
+    if not isinstance(ck, dict) or not {"model", "optimizer", "step"} <= ck.keys():
+        raise FileFormatError(path, "not a sweepedit training checkpoint (it needs model, "
+                                    "optimizer and step)")
+    return ck
+
+
 def save_weights(net: NeuralSweeper, path: str | Path, extra: dict[str, Any] | None = None,
                  half: bool = False) -> None:
     """Write {'config', 'state_dict', 'info'} (float32, or float16 if half) to path."""
@@ -299,7 +316,7 @@ def train_sweeper(out_path: str | Path = NEURAL_WEIGHTS, steps: int = 3000,
     start_step, elapsed = 0, 0.0
     rng = np.random.default_rng(seed)
     if resume and ckpt_path.exists():
-        ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+        ck = load_checkpoint(ckpt_path)
         net.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         start_step, elapsed = int(ck["step"]), float(ck.get("seconds", 0.0))
