@@ -348,3 +348,38 @@ def test_grid_surface_keeps_a_sparse_shell_of_cells():
     surface = occ.grid_surface(grid, np.full(3, -0.5), np.full(3, 0.5), smooth=0.7)
     assert len(surface.faces) > 0 and surface.is_watertight
     assert len(trimesh.graph.connected_components(surface.face_adjacency)) == 5
+
+
+def test_obj_relative_face_indices_count_back_from_the_face(tmp_path) -> None:
+    """OBJ's -1 is the last vertex defined before the face (trimesh counts from the end
+    of the file): a cube and a small box written with relative indices load as the same
+    mesh as with absolute ones; an index reaching before the first vertex is refused."""
+    import trimesh
+
+    from sweepedit.errors import FileFormatError
+    from sweepedit.io.shapes import load_shape
+
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    small = trimesh.creation.box(extents=(0.2, 0.2, 0.2))
+    small.apply_translation((2.0, 0.0, 0.0))
+    relative, absolute, seen = [], [], 0
+    for mesh in (cube, small):
+        block = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in mesh.vertices]
+        relative += block + [f"f {a - 8} {b - 8} {c - 8}" for a, b, c in mesh.faces]
+        absolute += block + [f"f {a + seen + 1} {b + seen + 1} {c + seen + 1}"
+                             for a, b, c in mesh.faces]
+        seen += len(mesh.vertices)
+    paths = {}
+    for name, lines in (("relative", relative), ("absolute", absolute)):
+        paths[name] = tmp_path / f"{name}.obj"
+        paths[name].write_text("\n".join(lines) + "\n")
+    got, want = (load_shape(paths[n], resolution=16, n_samples=100) for n in paths)
+    assert len(got.surface.vertices) == len(want.surface.vertices) == 16
+    np.testing.assert_allclose(got.surface.vertices, want.surface.vertices)
+    np.testing.assert_array_equal(got.surface.faces, want.surface.faces)
+    assert got.surface.volume == pytest.approx((1.0 + 0.008) / 2.6**3, rel=1e-6)  # normalised
+
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -4\n")
+    with pytest.raises(FileFormatError, match=r"bad\.obj.*line 4"):
+        load_shape(bad, resolution=16, n_samples=100)

@@ -32,7 +32,9 @@ reader runs (sweepedit.io.headers), so a header claiming 10^12 faces allocates n
 from __future__ import annotations
 
 import hashlib
+import io
 import math
+import re
 import struct
 import zipfile
 import zlib
@@ -241,7 +243,11 @@ def _read_mesh(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray | None, np.
     """(V, 3) vertices and (F, 3) faces of all meshes in the file (scene transforms
     applied), or (P, 3) points and faces None for a PLY point cloud."""
     try:
-        scene = trimesh.load_scene(str(path), file_type=ext[1:], process=False)
+        relative = _absolute_obj_indices(path.read_bytes()) if ext == ".obj" else None
+        if relative is not None:
+            scene = trimesh.load_scene(io.BytesIO(relative), file_type="obj", process=False)
+        else:
+            scene = trimesh.load_scene(str(path), file_type=ext[1:], process=False)
     except MemoryError:
         raise FileFormatError(path, "not enough memory to load it") from None
     except Exception as exc:  # trimesh's readers raise anything on a malformed file
@@ -270,6 +276,41 @@ def _read_mesh(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray | None, np.
     if point_blocks:
         raise FileFormatError(path, "the mesh has vertices but no faces")
     raise FileFormatError(path, "no geometry found (empty or truncated file?)")
+
+
+_RELATIVE_FACE = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[\s/])-\d", re.MULTILINE)
+
+
+def _absolute_obj_indices(data: bytes) -> bytes | None:
+    """The OBJ text `data` with its relative (negative) face indices made absolute, or None
+    when it has none. In OBJ, -1 is the last vertex (texture coordinate, normal) defined
+    *before* the face; trimesh counts it from the end of the file instead, which loads a
+    different shape without a word."""
+    if not _RELATIVE_FACE.search(data):
+        return None
+    counts = {b"v": 0, b"vt": 0, b"vn": 0}
+    kinds = (b"v", b"vt", b"vn")
+    out = []
+    for number, line in enumerate(data.splitlines(), start=1):
+        head, _, rest = line.strip().partition(b" ")
+        if head in counts:
+            counts[head] += 1
+        elif head == b"f" and b"-" in rest:
+            corners = []
+            for corner in rest.split():
+                parts = corner.split(b"/")
+                for i, part in enumerate(parts[:3]):
+                    if part.startswith(b"-"):
+                        index = counts[kinds[i]] + int(part) + 1
+                        if index < 1:
+                            raise ValueError(f"line {number}: face index {int(part)} reaches "
+                                             f"before the {counts[kinds[i]]} "
+                                             f"{kinds[i].decode()} lines above it")
+                        parts[i] = str(index).encode()
+                corners.append(b"/".join(parts))
+            line = b"f " + b" ".join(corners)
+        out.append(line)
+    return b"\n".join(out) + b"\n"
 
 
 def _read_point_text(path: Path) -> np.ndarray:
