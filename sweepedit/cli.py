@@ -236,21 +236,29 @@ def _run_cancellable(work: Callable[[], object], cancel: threading.Event,
     import threading
 
     box: dict[str, object] = {}
+    done = threading.Event()
 
     def target() -> None:
         try:
             box["value"] = work()
         except BaseException as exc:  # re-raised in the calling thread
             box["error"] = exc
+        finally:
+            done.set()
 
     thread = threading.Thread(target=target, daemon=True)
     thread.start()
-    while thread.is_alive():
+    # Waiting on our own event, not on join(): a KeyboardInterrupt that lands inside
+    # Thread.join can leave is_alive() False while the work still runs (CPython 3.11),
+    # and the process then ended mid-fit with no file and an abort.
+    while True:
         try:
-            thread.join(0.2)
+            if done.wait(0.2):
+                break
         except KeyboardInterrupt:
             print(f"\nsweepedit: {notice}", file=sys.stderr)
             cancel.set()
+    thread.join()
     if "error" in box:
         raise box["error"]  # type: ignore[misc]
     return box["value"]

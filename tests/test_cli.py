@@ -352,3 +352,31 @@ def test_fit_progress_text_names_the_stage_and_the_time_left() -> None:
     desc, postfix = fit_progress_text(p)
     assert desc == "residual round 1 of 2"
     assert "40% of stage" in postfix and "~3 s left" in postfix
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_a_fit_keeps_the_best_so_far(tmp_path: Path) -> None:
+    """A real SIGINT to a real `sweepedit fit` in the middle of refinement: one notice,
+    the best abstraction so far written and reported, exit 0, no traceback, no abort."""
+    import signal
+    import time
+
+    out = tmp_path / "cactus.json"
+    example = Path(__file__).resolve().parents[1] / "resources" / "examples" / "cactus.off"
+    # Far more steps than run before the signal, so the fit is surely under way.
+    proc = subprocess.Popen([sys.executable, "-m", "sweepedit.cli", "fit", str(example), "-o",
+                             str(out), "--refine-iterations", "20000", "--time-limit", "300"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    line = ""
+    while "refinement" not in line and time.monotonic() < deadline:
+        line = proc.stderr.read(64)  # the progress bar names its stage
+        assert line or proc.poll() is None, "the fit ended before it was interrupted"
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 0, stderr[-2000:]
+    assert "Traceback" not in stderr and "terminate called" not in stderr
+    assert stderr.count("cancelling, keeping the best result so far") == 1
+    assert "cancelled, best so far" in stdout
+    assert read_abstraction(out).primitives
