@@ -528,3 +528,43 @@ def test_non_finite_record_values_are_written_as_null(tmp_path) -> None:
     assert data["fit"]["best"] == [1.0, None, None]
     assert data["fit"]["ok"] == 0.5
     assert read_abstraction(path).fit["score"] is None
+
+
+def test_a_file_may_not_ask_for_more_than_the_limits(tmp_path: Path, capsys) -> None:
+    """Past params.MAX_PRIMITIVES primitives (JSON or official txt), MAX_CONTROL_POINTS
+    control points or MAX_SCALING_TERMS scaling terms, a file is refused with one line
+    naming it, before any work: `eval` of 100,000 primitives once asked for 13.7 GiB."""
+    from sweepedit.cli import main
+
+    one = {"control_points": [[0, 0, -0.3], [0, 0, 0], [0, 0, 0.3]],
+           "profile": {"a": 0.1, "b": 0.1, "degree": 2.0}, "scaling": [0.0]}
+
+    def document(primitives: list[dict[str, Any]]) -> str:
+        return json.dumps({"format": "sweepedit.abstraction", "version": 1,
+                           "primitives": primitives})
+
+    at_limit = tmp_path / "at_limit.json"
+    at_limit.write_text(document([one] * params.MAX_PRIMITIVES))
+    assert len(read_abstraction(at_limit).primitives) == params.MAX_PRIMITIVES
+    cases = {
+        "many.json": document([one] * (params.MAX_PRIMITIVES + 1)),
+        "long.json": document([{**one, "control_points": [[0, 0, i / 1000] for i in
+                                                          range(params.MAX_CONTROL_POINTS + 1)]}]),
+        "poly.json": document([{**one, "scaling": [0.0] * (params.MAX_SCALING_TERMS + 1)}]),
+        "many.txt": "0 0 -0.3 0 0 0 0 0 0.3 0.1 0.1 2 0 0\n" * (params.MAX_PRIMITIVES + 1),
+        "wide.txt": " ".join(["0"] * (3 * (params.MAX_CONTROL_POINTS + 1) + 5)) + "\n",
+    }
+    for name, text in cases.items():
+        path = tmp_path / name
+        path.write_text(text)
+        with pytest.raises(FileFormatError, match=name.replace(".", r"\.")) as info:
+            read_abstraction(path)
+        assert "at most" in str(info.value) or "more than" in str(info.value)
+    shape = tmp_path / "box.stl"
+    import trimesh
+
+    trimesh.creation.box(extents=(0.2, 0.2, 0.6)).export(shape)
+    capsys.readouterr()
+    assert main(["eval", str(tmp_path / "many.json"), str(shape)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "many.json" in err[0] and "1,024" in err[0]

@@ -75,6 +75,13 @@ FORMAT_NAME = "sweepedit.abstraction"
 FORMAT_VERSION = 1
 
 TOP_KEYS = ("format", "version", "normalization", "source", "primitives", "fit")
+# What one file may ask for, checked before any work: the exact inside test and the
+# meshers hold every primitive at once (100,000 primitives asked eval for 13.7 GiB and
+# crashed manifold3d's union). Fits use at most 32 primitives of 8 control points and 3
+# scaling terms; these leave a hand-made file a wide margin.
+MAX_PRIMITIVES = 1024
+MAX_CONTROL_POINTS = 256
+MAX_SCALING_TERMS = 32
 PRIMITIVE_KEYS = ("control_points", "profile", "scaling", "name", "color", "visible", "locked")
 PROFILE_KEYS = ("a", "b", "degree")
 NORMALIZATION_KEYS = ("center", "scale")
@@ -453,6 +460,9 @@ class _JsonReader:
         items = data["primitives"]
         if not isinstance(items, list):
             raise self.error(f"expected a list, got {_describe(items)}", field="primitives")
+        if len(items) > MAX_PRIMITIVES:
+            raise self.error(f"{len(items):,} primitives; sweepedit reads at most "
+                             f"{MAX_PRIMITIVES:,} from one file", field="primitives")
         primitives = [self.primitive(item, i) for i, item in enumerate(items)]
         extras = {k: v for k, v in data.items() if k not in TOP_KEYS}
         if norm_extras:
@@ -505,6 +515,9 @@ class _JsonReader:
         if not isinstance(points, list):
             raise self.error(f"expected a list of [x, y, z] points, got {_describe(points)}",
                              index, "control_points")
+        if len(points) > MAX_CONTROL_POINTS:
+            raise self.error(f"{len(points):,} control points; a primitive may have at most "
+                             f"{MAX_CONTROL_POINTS}", index, "control_points")
         control_points = [self.vector(p, 3, index, f"control_points[{j}]")
                           for j, p in enumerate(points)]
         profile = self.required(item, "profile", index, "profile")
@@ -517,6 +530,9 @@ class _JsonReader:
         if not isinstance(scaling, list):
             raise self.error(f"expected a list [s1, ..., sk], got {_describe(scaling)}",
                              index, "scaling")
+        if len(scaling) > MAX_SCALING_TERMS:
+            raise self.error(f"{len(scaling):,} scaling terms; a primitive may have at most "
+                             f"{MAX_SCALING_TERMS}", index, "scaling")
         coefficients = [self.number(s, index, f"scaling[{i}]") for i, s in enumerate(scaling)]
         name = item.get("name", default_name(index))
         if not isinstance(name, str):
@@ -617,7 +633,13 @@ def read_official_txt(path: PathLike, n_control_points: int | None = None) -> Ab
         content = line.split("#", 1)[0].strip()
         if not content:
             continue
+        if len(rows) == MAX_PRIMITIVES:
+            raise FileFormatError(path, f"line {lineno}: more than {MAX_PRIMITIVES:,} primitive "
+                                  "rows; sweepedit reads at most that many from one file")
         values = _parse_row(path, lineno, content.split(), len(rows))
+        if values.size > official_columns(MAX_CONTROL_POINTS):
+            raise FileFormatError(path, f"line {lineno}: {values.size:,} numbers, more than "
+                                  f"{MAX_CONTROL_POINTS} control points' worth")
         if expected is None:
             if values.size < official_columns(MIN_CONTROL_POINTS) or (values.size - 5) % 3:
                 raise FileFormatError(path, f"line {lineno}: {values.size} numbers; a row "
