@@ -383,3 +383,42 @@ def test_obj_relative_face_indices_count_back_from_the_face(tmp_path) -> None:
     bad.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -4\n")
     with pytest.raises(FileFormatError, match=r"bad\.obj.*line 4"):
         load_shape(bad, resolution=16, n_samples=100)
+
+
+def test_misleading_files_get_messages_that_name_their_fault(tmp_path) -> None:
+    """Coordinates whose span overflows, a binary STL whose count is too small (its
+    triangles are read) or too large, voxels stored as Python objects, a truncated PLY:
+    each a FileFormatError that says what is wrong, not what it led to."""
+    import struct
+
+    import trimesh
+
+    from sweepedit.errors import FileFormatError
+    from sweepedit.io.shapes import load_shape
+
+    box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
+    huge = tmp_path / "huge.off"
+    lines = ["OFF", f"{len(box.vertices)} {len(box.faces)} 0"]
+    lines += [" ".join(f"{1e308 * np.sign(c):.6g}" for c in v) for v in box.vertices]
+    lines += [f"3 {a} {b} {c}" for a, b, c in box.faces]
+    huge.write_text("\n".join(lines) + "\n")
+    stl = box.export(file_type="stl")
+    assert len(stl) == 84 + 50 * 12
+    small = tmp_path / "small_count.stl"
+    small.write_bytes(stl[:80] + struct.pack("<I", 5) + stl[84:])
+    large = tmp_path / "large_count.stl"
+    large.write_bytes(stl[:80] + struct.pack("<I", 99) + stl[84:])
+    objects = tmp_path / "objects.npz"
+    np.savez(objects, occupancy=np.array([np.zeros(3), "x"], dtype=object))
+    ply = box.export(file_type="ply")
+    truncated = tmp_path / "truncated.ply"
+    truncated.write_bytes(ply[:-50])
+    expected = {huge: "size overflows", large: "claims 99 triangles",
+                objects: "holds Python objects", truncated: "ends before the data"}
+    for path, words in expected.items():
+        with pytest.raises(FileFormatError, match=words) as info:
+            load_shape(path, resolution=16, n_samples=100)
+        assert path.name in str(info.value)
+    read = load_shape(small, resolution=16, n_samples=100)
+    assert len(read.surface.faces) == 12
+    assert read.surface.volume == pytest.approx(6.0 / 27.0, rel=1e-6)  # longest side 3 -> 1

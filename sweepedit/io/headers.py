@@ -47,6 +47,8 @@ def check_claimed_sizes(path: Path, ext: str, data: bytes) -> None:
         _check_npz(path, data)
     elif ext == ".glb":
         _check_glb(path, data)
+    elif ext == ".stl":
+        _check_stl(path, data)
 
 
 def _claims_too_much(path: Path, what: str, needed: int, holds: int, unit: str) -> None:
@@ -160,8 +162,10 @@ def _check_npy(path: Path, stream: io.IOBase, size: int, member: str) -> None:
     if cells > MAX_VOXEL_CELLS:
         raise FileFormatError(path, f"{where}the array has shape {shape} ({cells:,} cells); "
                                     f"at most {MAX_VOXEL_CELLS:,} are read")
-    if dtype.hasobject:
-        return  # np.load refuses pickled objects with a clear error
+    if dtype.hasobject:  # np.load would refuse them too, in words about pickling
+        raise FileFormatError(path, f"{where}the array holds Python objects (type {dtype}), "
+                                    "which sweepedit never unpickles; save the voxels as "
+                                    "booleans or numbers")
     _claims_too_much(path, f"{where}an array of shape {shape} and type {dtype}",
                      cells * dtype.itemsize, size - stream.tell(), "bytes")
 
@@ -182,6 +186,33 @@ def _check_npz(path: Path, data: bytes) -> None:
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, ValueError,
             NotImplementedError) as exc:
         raise FileFormatError(path, f"not a readable .npz archive ({exc})") from None
+
+
+# --------------------------------------------------------------------------- STL
+
+STL_HEADER = 84  # 80 bytes of text, then the triangle count (uint32)
+STL_TRIANGLE = 50  # normal, three corners (float32 each), 2 attribute bytes
+
+
+def is_binary_stl(data: bytes) -> bool:
+    """Whether `data` is a binary STL: an ASCII one starts with 'solid' and has facets
+    (a binary header may start with 'solid' too, but holds no 'facet' text)."""
+    head = data[:1024].lstrip().lower()
+    return len(data) >= STL_HEADER and not (head.startswith(b"solid") and b"facet" in head)
+
+
+def stl_triangles(data: bytes) -> tuple[int, int]:
+    """(claimed, held): the triangles a binary STL's header claims and those its size holds."""
+    claimed = struct.unpack_from("<I", data, 80)[0]
+    return claimed, (len(data) - STL_HEADER) // STL_TRIANGLE
+
+
+def _check_stl(path: Path, data: bytes) -> None:
+    if not is_binary_stl(data):
+        return
+    claimed = stl_triangles(data)[0]
+    _claims_too_much(path, f"{claimed:,} triangles", STL_HEADER + STL_TRIANGLE * claimed,
+                     len(data), "bytes")
 
 
 # --------------------------------------------------------------------------- GLB

@@ -48,7 +48,14 @@ import trimesh
 from sweepedit.errors import DegenerateShapeError, FileFormatError
 from sweepedit.geometry.model import Normalization
 from sweepedit.io import occupancy as occ
-from sweepedit.io.headers import MAX_VOXEL_CELLS, check_claimed_sizes
+from sweepedit.io.headers import (
+    MAX_VOXEL_CELLS,
+    STL_HEADER,
+    STL_TRIANGLE,
+    check_claimed_sizes,
+    is_binary_stl,
+    stl_triangles,
+)
 
 ShapeKind = Literal["mesh", "voxels", "points"]
 
@@ -243,14 +250,19 @@ def _read_mesh(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray | None, np.
     """(V, 3) vertices and (F, 3) faces of all meshes in the file (scene transforms
     applied), or (P, 3) points and faces None for a PLY point cloud."""
     try:
-        relative = _absolute_obj_indices(path.read_bytes()) if ext == ".obj" else None
-        if relative is not None:
-            scene = trimesh.load_scene(io.BytesIO(relative), file_type="obj", process=False)
+        fixed = (_absolute_obj_indices(path.read_bytes()) if ext == ".obj"
+                 else _stl_full_count(path.read_bytes()) if ext == ".stl" else None)
+        if fixed is not None:
+            scene = trimesh.load_scene(io.BytesIO(fixed), file_type=ext[1:], process=False)
         else:
             scene = trimesh.load_scene(str(path), file_type=ext[1:], process=False)
     except MemoryError:
         raise FileFormatError(path, "not enough memory to load it") from None
     except Exception as exc:  # trimesh's readers raise anything on a malformed file
+        if ext == ".ply" and "unexpected length" in str(exc):
+            # The header's sizes pass headers' lower bound but the lists need more.
+            raise FileFormatError(path, "the file ends before the data its header "
+                                        "announces (truncated?)") from exc
         raise FileFormatError(path, f"cannot read the {ext} file ({type(exc).__name__}: "
                                     f"{_short(exc)})") from exc
     vertex_blocks, face_blocks, point_blocks = [], [], []
@@ -276,6 +288,19 @@ def _read_mesh(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray | None, np.
     if point_blocks:
         raise FileFormatError(path, "the mesh has vertices but no faces")
     raise FileFormatError(path, "no geometry found (empty or truncated file?)")
+
+
+def _stl_full_count(data: bytes) -> bytes | None:
+    """A binary STL whose header counts fewer triangles than it holds whole, with the
+    count made right; else None. trimesh trusts the count, finds the size disagrees and
+    reads nothing (a file of 12 good triangles was "no geometry"). A count larger than
+    the file holds is refused before this (headers.check_claimed_sizes)."""
+    if not is_binary_stl(data):
+        return None
+    claimed, held = stl_triangles(data)
+    if claimed >= held or len(data) != STL_HEADER + STL_TRIANGLE * held:
+        return None
+    return data[:80] + struct.pack("<I", held) + data[STL_HEADER:]
 
 
 _RELATIVE_FACE = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[\s/])-\d", re.MULTILINE)
@@ -457,12 +482,18 @@ def _normalization(path: Path, points: np.ndarray) -> Normalization:
     """Box centre to the origin, longest side to 1; DegenerateShapeError for a single
     point, or a shape too small for its distance from the origin to keep its digits."""
     lower, upper = points.min(axis=0), points.max(axis=0)
-    with np.errstate(over="ignore"):
-        extent = float(np.max(upper - lower))
-    if not math.isfinite(extent):
-        raise FileFormatError(path, "coordinates too large: the shape's size overflows")
+    _check_size(path, points)
     _check_precision(path, points)
     return Normalization.from_bounds(lower, upper)
+
+
+def _check_size(path: Path, points: np.ndarray) -> None:
+    """FileFormatError if the (P, 3) finite points span more than float64 can hold."""
+    with np.errstate(over="ignore"):
+        extent = float(np.max(points.max(axis=0) - points.min(axis=0)))
+    if not math.isfinite(extent):
+        raise FileFormatError(path, "coordinates too large: the shape's size overflows "
+                                    f"(they reach {float(np.max(np.abs(points))):.3g})")
 
 
 def _check_precision(path: Path, points: np.ndarray) -> None:
@@ -536,6 +567,7 @@ def _shape_from_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, resolu
     used = np.zeros(vertices.shape[0], dtype=bool)
     used[faces.ravel()] = True  # unreferenced vertices may hold anything
     _check_finite(path, vertices[used], "vertices")
+    _check_size(path, vertices[used])
     _check_precision(path, vertices[used])
     conditioning = _conditioning(vertices[used])
     shift, factor = conditioning or (np.zeros(3), 1.0)
