@@ -175,4 +175,4 @@ def test_outside_axis_loss_is_the_distance_beyond_the_margin() -> None:
     loss.backward()
     grad = axes.grad[0].numpy() * 4  # d loss / d point, times the 4 points of the mean
     np.testing.assert_allclose(grad, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], atol=1e-9)
-    assert float(outside_axis_loss(axes[:, :1], outside, margin)) == 0.0
+    assert float(outside_axis_loss(axes[:, :1], outside, margin).detach()) == 0.0
