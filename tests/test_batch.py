@@ -316,3 +316,21 @@ def test_two_node_cluster_runs_tasks_on_both_nodes(tmp_path: Path, _ray_module) 
     finally:
         ray.shutdown()
         cluster.shutdown()
+
+
+def test_without_an_address_batch_starts_its_own_ray_whatever_this_machine_says(
+        _ray_module, monkeypatch) -> None:
+    """No --address: a local instance of its own, even where RAY_ADDRESS (or a `ray start`
+    head's session file) names another cluster, here one that is not there."""
+    from sweepedit.batch.engine import RayEngine
+
+    if ray.is_initialized():
+        ray.shutdown()
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:9")
+    engine = RayEngine(workers=1, cpus_per_task=1, gpus_per_task=0.0, address=None,
+                       max_retries=0)
+    try:
+        assert ray.is_initialized() and engine.slots() == 1
+        assert ray.cluster_resources().get("CPU") == 1.0
+    finally:
+        engine.shutdown()

@@ -168,8 +168,12 @@ class RayEngine:
                     _client_token_auth()
                 self._ray.init(address=address, **quiet)
             else:
+                # "local": a Ray instance of its own, as the README promises, even when a
+                # `ray start` head runs here, a dead one left its session file, or
+                # RAY_ADDRESS is set (--address auto joins those).
                 count = workers or max(1, machine_cores() // self._cpus)
-                self._ray.init(num_cpus=count * self._cpus, include_dashboard=False,
+                self._ray.init(address="local", num_cpus=count * self._cpus,
+                               include_dashboard=False,
                                object_store_memory=_OBJECT_STORE_BYTES, **quiet)
         except (ConnectionError, ValueError, RuntimeError) as exc:
             where = f"at {address}" if address else "on this machine"
