@@ -71,11 +71,12 @@ def _check_reachable(address: str, timeout: float = 5.0) -> None:
                              f"({exc.strerror or exc})") from None
 
 
-def _client_token_auth() -> None:
-    """Ray Client sends the cluster's auth token only when RAY_AUTH_MODE says "token";
-    unlike a local ray.init, it does not turn that on when a token is there (Ray 2.60:
-    the server answers "Authentication required" and the client times out). Left as
-    the user set it, if they did."""
+def _token_auth() -> None:
+    """Joining a cluster by its address (HOST:PORT or ray://HOST:PORT), Ray sends this
+    machine's auth token only when RAY_AUTH_MODE says "token"; unlike a local ray.init
+    (and --address auto), it does not turn that on when a token is there (Ray 2.60: a
+    `ray start --head` with its default token answered with 24 s of InvalidAuthToken,
+    and Ray Client timed out). Left as the user set it, if they did."""
     if "RAY_AUTH_MODE" in os.environ:
         return
     try:
@@ -164,8 +165,7 @@ class RayEngine:
         try:
             if address:
                 _check_reachable(address)
-                if address.startswith("ray://"):
-                    _client_token_auth()
+                _token_auth()
                 self._ray.init(address=address, **quiet)
             else:
                 # "local": a Ray instance of its own, as the README promises, even when a
