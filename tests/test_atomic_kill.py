@@ -1,16 +1,15 @@
 """Saves are atomic against SIGKILL (issue 18).
 
-A child process writes a large parameter file (sweepedit.io.params.write_abstraction, 2000
-primitives, ~1 MB) and a large mesh (sweepedit.io.mesh_export.write_mesh, 20k faces, binary
-PLY, ~1 MB) over and over, alternating between two known contents; it is killed with
-SIGKILL many times: every other time while a temporary file is being synced (the moment
-the test is about, made certain, not left to timing), else at a random moment from the
-start of its writes or from the end of its first complete write of both files (so that
-each file is seen in both versions, whatever the machine's speed). After
-every kill each file must be exactly one of its two known contents (the old complete file
-or the new one), and nothing but hidden temporary files of killed writers may be left
-beside them; the next write removes those.
-"""
+A child process writes a large parameter file (sweepedit.io.params.write_abstraction, the
+most primitives a file may hold, of 6 control points, ~1 MB) and a large mesh
+(sweepedit.io.mesh_export.write_mesh, 20k faces, binary PLY, ~1 MB) over and over,
+alternating between two known contents; it is killed with SIGKILL many times: every other
+time while a temporary file is being synced (the moment the test is about, made certain, not
+left to timing), else at a random moment from the start of its writes or from the end of its
+first complete write of both files (so that each file is seen in both versions, whatever the
+machine's speed). After every kill each file must be exactly one of its two known contents
+(the old complete file or the new one), and nothing but hidden temporary files of killed
+writers may be left beside them; the next write removes those. """
 
 from __future__ import annotations
 
@@ -28,17 +27,17 @@ import trimesh
 from sweepedit.geometry.mesher import TriangleMesh
 from sweepedit.geometry.model import Abstraction, SweepPrimitive
 from sweepedit.io.mesh_export import write_mesh
-from sweepedit.io.params import read_abstraction, write_abstraction
+from sweepedit.io.params import MAX_PRIMITIVES, read_abstraction, write_abstraction
 
 KILLS = 30
-PRIMITIVES = 2000
+PRIMITIVES = MAX_PRIMITIVES  # the most a file may hold
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork and SIGKILL")
 
 
 def _abstraction(seed: int) -> Abstraction:
     rng = np.random.default_rng(seed)
-    return Abstraction([SweepPrimitive(rng.uniform(-0.4, 0.4, (3, 3)), a=0.1, b=0.05,
+    return Abstraction([SweepPrimitive(rng.uniform(-0.4, 0.4, (6, 3)), a=0.1, b=0.05,
                                        degree=2.0, scaling=(0.1, -0.1), name=f"p{i}")
                         for i in range(PRIMITIVES)])
 
