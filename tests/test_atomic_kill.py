@@ -9,7 +9,8 @@ left to timing), else at a random moment from the start of its writes or from th
 first complete write of both files (so that each file is seen in both versions, whatever the
 machine's speed). After every kill each file must be exactly one of its two known contents
 (the old complete file or the new one), and nothing but hidden temporary files of killed
-writers may be left beside them; the next write removes those. """
+writers may be left beside them; the next write removes those.
+"""
 
 from __future__ import annotations
 
