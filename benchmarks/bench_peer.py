@@ -58,7 +58,7 @@ import sys
 import time
 import types
 from collections.abc import Callable, Sequence
-from functools import lru_cache
+from functools import lru_cache, partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -216,25 +216,14 @@ def outer_surface_samples(sqs: Sequence[Superquadric], count: int = N_SAMPLES,
     sampled by area, samples inside another superquadric are dropped and the kept ones
     topped up to `count`.
     """
-    from sweepedit.analysis.metrics import sample_triangles
+    from sweepedit.analysis.metrics import union_surface_samples
 
     if not sqs:
         return np.zeros((0, 3))
-    rng = np.random.default_rng(seed)
     vertices, faces, owner = superquadric_meshes(sqs, cells)
-    kept: list[np.ndarray] = []
-    have, ask = 0, count
-    while have < count:
-        pts, face = sample_triangles(vertices, faces, ask, rng)
-        keep = np.ones(ask, dtype=bool)
-        for j, sq in enumerate(sqs):
-            others = np.flatnonzero(keep & (owner[face] != j))
-            keep[others[inside_superquadric(pts[others], sq)]] = False
-        kept.append(pts[keep])
-        have += int(keep.sum())
-        share = max(keep.mean(), 0.05)
-        ask = int(np.ceil((count - have) / share * 1.1)) + 16
-    return np.concatenate(kept)[:count]
+    tests = [partial(inside_superquadric, sq=sq) for sq in sqs]
+    return union_surface_samples(vertices, faces, owner, tests, count,
+                                 np.random.default_rng(seed))
 
 
 def score_superquadrics(sqs: Sequence[Superquadric], shape: Shape, n_samples: int = N_SAMPLES,

@@ -9,7 +9,8 @@ area-uniform samples on each surface; for the abstraction, only its outer surfac
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,11 +32,9 @@ F1_TAUS = (0.05, 0.01)
 # the strictest F1 threshold (0.01).
 _SAMPLE_STATIONS = 96
 _SAMPLE_PROFILE_POINTS = 64
-# outer_surface_samples(quick=True): the same meshes (coarser ones sit inside a round
-# profile by their chords' sagitta, which moved a precision at 0.008 from 0.96 to 0.81),
-# the refreshes' axis samples for the inside test.
-_QUICK_STATIONS = _SAMPLE_STATIONS
-_QUICK_PROFILE_POINTS = _SAMPLE_PROFILE_POINTS
+# outer_surface_samples(quick=True) keeps the same meshes (coarser ones sit inside a round
+# profile by their chords' sagitta, which moved a precision at 0.008 from 0.96 to 0.81)
+# and tests inside with the refreshes' axis samples.
 _QUICK_T_SAMPLES = 128
 
 
@@ -74,26 +73,38 @@ def outer_surface_samples(primitives: Sequence[SweepPrimitive], count: int = N_S
     """
     if not primitives:
         return np.zeros((0, 3))
-    rng = np.random.default_rng(seed)
-    stations, ring = (_QUICK_STATIONS, _QUICK_PROFILE_POINTS) if quick else (
-        _SAMPLE_STATIONS, _SAMPLE_PROFILE_POINTS)
     t_samples = _QUICK_T_SAMPLES if quick else T_SAMPLES
-    meshes = sweep_meshes(primitives, stations, ring)
+    meshes = sweep_meshes(primitives, _SAMPLE_STATIONS, _SAMPLE_PROFILE_POINTS)
     if not quick:
-        meshes = [solid_mesh(p, stations, ring) if folds_onto_itself(p) else m
+        meshes = [solid_mesh(p, _SAMPLE_STATIONS, _SAMPLE_PROFILE_POINTS)
+                  if folds_onto_itself(p) else m
                   for p, m in zip(primitives, meshes, strict=True)]
     vertices = np.concatenate([m.vertices for m in meshes])
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
     faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets, strict=True)])
     owner = np.concatenate([np.full(len(m.faces), i) for i, m in enumerate(meshes)])
+    tests = [partial(inside_primitive, primitive=p, t_samples=t_samples) for p in primitives]
+    return union_surface_samples(vertices, faces, owner, tests, count,
+                                 np.random.default_rng(seed))
+
+
+def union_surface_samples(vertices: np.ndarray, faces: np.ndarray, owner: np.ndarray,
+                          inside: Sequence[Callable[[np.ndarray], np.ndarray]], count: int,
+                          rng: np.random.Generator) -> np.ndarray:
+    """Area-uniform samples on the outer surface of a union of solids -> (count, 3).
+
+    vertices (V, 3) and faces (F, 3): all the solids' meshes together; owner (F,) the
+    solid of each face; inside[j](points (P, 3)) -> (P,) bool, the inside test of solid j.
+    Samples inside a solid other than their own are dropped and the kept ones topped up.
+    """
     kept: list[np.ndarray] = []
     have, ask = 0, count
     while have < count:
         pts, face = sample_triangles(vertices, faces, ask, rng)
         keep = np.ones(ask, dtype=bool)
-        for j, prim in enumerate(primitives):
+        for j, test in enumerate(inside):
             others = np.flatnonzero(keep & (owner[face] != j))
-            keep[others[inside_primitive(pts[others], prim, t_samples)]] = False
+            keep[others[test(pts[others])]] = False
         kept.append(pts[keep])
         have += int(keep.sum())
         share = max(keep.mean(), 0.05)
