@@ -189,6 +189,7 @@ def load_shape(path: str | Path, resolution: int = occ.DEFAULT_RESOLUTION,
         raise FileFormatError(path, "the file is empty")
     digest = hashlib.sha256(data).hexdigest()
     check_claimed_sizes(path, ext, data)
+    repaired = _repaired_mesh_bytes(path, ext, data)
     del data
 
     try:
@@ -199,7 +200,7 @@ def load_shape(path: str | Path, resolution: int = occ.DEFAULT_RESOLUTION,
             shape = _shape_from_points(path, _read_point_text(path), resolution, n_samples,
                                        seed)
         else:
-            vertices, faces, points = _read_mesh(path, ext)
+            vertices, faces, points = _read_mesh(path, ext, repaired)
             if faces is not None:
                 shape = _shape_from_mesh(path, vertices, faces, resolution, n_samples, seed)
             else:
@@ -246,14 +247,28 @@ def check_fittable(shape: Shape) -> None:
 # --------------------------------------------------------------------------- readers
 
 
-def _read_mesh(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """(V, 3) vertices and (F, 3) faces of all meshes in the file (scene transforms
-    applied), or (P, 3) points and faces None for a PLY point cloud."""
+def _repaired_mesh_bytes(path: Path, ext: str, data: bytes) -> bytes | None:
+    """The bytes of a mesh file that trimesh would misread, repaired (an OBJ's relative
+    face indices, a binary STL's short triangle count); None when it reads them right."""
     try:
-        fixed = (_absolute_obj_indices(path.read_bytes()) if ext == ".obj"
-                 else _stl_full_count(path.read_bytes()) if ext == ".stl" else None)
-        if fixed is not None:
-            scene = trimesh.load_scene(io.BytesIO(fixed), file_type=ext[1:], process=False)
+        if ext == ".obj":
+            return _absolute_obj_indices(data)
+        if ext == ".stl":
+            return _stl_full_count(data)
+    except ValueError as exc:
+        raise FileFormatError(path, f"cannot read the {ext} file ({type(exc).__name__}: "
+                                    f"{_short(exc)})") from exc
+    return None
+
+
+def _read_mesh(path: Path, ext: str, repaired: bytes | None = None,
+               ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """(V, 3) vertices and (F, 3) faces of all meshes in the file (scene transforms
+    applied), or (P, 3) points and faces None for a PLY point cloud. repaired: the
+    file's bytes to read instead (_repaired_mesh_bytes)."""
+    try:
+        if repaired is not None:
+            scene = trimesh.load_scene(io.BytesIO(repaired), file_type=ext[1:], process=False)
         else:
             scene = trimesh.load_scene(str(path), file_type=ext[1:], process=False)
     except MemoryError:
