@@ -635,14 +635,13 @@ def _step_loss(sweeper: AnalyticSweeper, layout: ParamLayout, logits: torch.Tens
     union = boltzmann_union(occupancy, torch.ones(1, occupancy.shape[1]))
     eps = 1e-5
     loss = torch.nn.functional.binary_cross_entropy(union[0].clamp(eps, 1 - eps), labels)
+    control_points, profile, scaling = layout.split(params)
     if fold_weight:
-        _, profile, scaling = layout.split(params)
         stations = torch.linspace(0.0, 1.0, bend.shape[2], dtype=params.dtype,
                                   device=params.device)
         loss = loss + fold_weight * fold_loss(bend[0], scaling_factor(scaling, stations),
                                               profile)
     if axis_weight and outside is not None and axis_t is not None:
-        control_points = layout.split(params)[0]
         loss = loss + axis_weight * outside_axis_loss(axis_points(control_points, axis_t),
                                                       outside)
     return loss
