@@ -21,11 +21,9 @@ from sweepedit.errors import SweepeditError
 from sweepedit.io.benchmark_set import BENCHMARK_DIR
 
 if TYPE_CHECKING:  # only for annotations: the command line imports these lazily
-    import threading
 
     from sweepedit.batch import BatchOptions, BatchReport
     from sweepedit.fitting.fit import FitProgress, FitSettings
-    from sweepedit.geometry.model import Abstraction
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -41,61 +39,29 @@ DEFAULT_SHAPES = BENCHMARK_DIR
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from sweepedit.io.mesh_export import export_abstraction
-    from sweepedit.io.params import read_abstraction
-    from sweepedit.io.step import is_step_path
+    from sweepedit.api import export, load, load_shape
+    from sweepedit.io.mesh_export import MESH_FORMATS
 
-    abstraction = read_abstraction(args.params)
-    if is_step_path(args.output):
-        return _export_step(abstraction, args)
-    if args.union:
-        raise SweepeditError("--union is for STEP files; a mesh export is the union already")
-    written = export_abstraction(abstraction, args.output, per_primitive=args.per_primitive,
-                                 original_frame=args.original_frame,
-                                 stations=args.stations, profile_points=args.profile_points)
+    abstraction = load(args.params)
+    options: dict[str, object] = {}
+    if Path(args.output).suffix.lower() in MESH_FORMATS:
+        options = {"stations": args.stations, "profile_points": args.profile_points}
+    if args.target:
+        if Path(args.output).suffix.lower() != ".blend":
+            raise SweepeditError("--target is for .blend files (the shape beside the curves)")
+        options["target_mesh"] = load_shape(args.target)
+    written = export(abstraction, args.output, per_primitive=args.per_primitive,
+                     original_frame=args.original_frame, union=args.union,
+                     progress=not args.quiet, **options)
     for path in written:
         print(path)
     return 0
 
 
-def _export_step(abstraction: Abstraction, args: argparse.Namespace) -> int:
-    """STEP export with a progress bar; Ctrl-C cancels and writes nothing."""
-    import threading
-
-    from tqdm import tqdm
-
-    from sweepedit.io.step import export_step
-
-    if args.per_primitive:
-        raise SweepeditError("a STEP file holds one solid per primitive already; "
-                             "drop --per-primitive (or use --union for one fused solid)")
-    cancel = threading.Event()
-    bars: list[tqdm] = []  # made at the first progress: a bad path's error comes alone
-
-    def progress(fraction: float, text: str) -> None:
-        if not bars:
-            bars.append(tqdm(total=100, desc="STEP", dynamic_ncols=True, disable=args.quiet,
-                             bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}"))
-        bars[0].n = round(100 * fraction)
-        bars[0].set_postfix_str(text, refresh=False)
-        bars[0].refresh()
-
-    try:
-        report = _run_cancellable(lambda: export_step(
-            abstraction, args.output, union=args.union, original_frame=args.original_frame,
-            progress=progress, cancelled=cancel.is_set), cancel,
-            "cancelling after the current step; nothing will be written...")
-    finally:
-        for bar in bars:
-            bar.close()
-    print(report.path)
-    return 0
-
-
 def _cmd_convert(args: argparse.Namespace) -> int:
-    from sweepedit.io.params import read_abstraction, write_abstraction
+    from sweepedit.api import load
 
-    write_abstraction(read_abstraction(args.input), args.output)
+    load(args.input).save(args.output)
     print(args.output)
     return 0
 
@@ -155,14 +121,13 @@ def _cmd_inside(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from sweepedit.io.params import atomic_write_bytes, read_abstraction
+    from sweepedit.api import inside, load
+    from sweepedit.io.params import atomic_write_bytes
 
-    abstraction = read_abstraction(args.params)
+    abstraction = load(args.params)
     points = _load_points(args.points)
     if args.sweeper == "exact":
-        from sweepedit.geometry.inside import inside_union
-
-        occupancy = inside_union(points, abstraction.primitives)
+        occupancy = inside(abstraction, points)
     else:
         from sweepedit.fitting.sweepers import soft_union_occupancy
 
@@ -176,13 +141,11 @@ def _cmd_inside(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
-    from sweepedit.analysis.metrics import evaluate
-    from sweepedit.io.params import read_abstraction
-    from sweepedit.io.shapes import load_shape
+    from sweepedit.api import evaluate, load, load_shape
 
-    abstraction = read_abstraction(args.params)
+    abstraction = load(args.params)
     shape = load_shape(args.shape)
-    metrics = evaluate(abstraction, shape, n_samples=args.samples, seed=args.seed)
+    metrics = evaluate(abstraction, shape, n_samples=args.samples, seed=args.seed).to_dict()
     print(f"shape      {args.shape}")
     print(f"params     {args.params}")
     print(f"primitives {metrics['n_primitives']}")
@@ -229,63 +192,22 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_cancellable(work: Callable[[], object], cancel: threading.Event,
-                     notice: str = "cancelling, keeping the best result so far...") -> object:
-    """Run work() in a thread; Ctrl-C sets `cancel` (the work returns its best so far, or
-    raises) after printing `notice`."""
-    import threading
-
-    box: dict[str, object] = {}
-    done = threading.Event()
-
-    def target() -> None:
-        try:
-            box["value"] = work()
-        except BaseException as exc:  # re-raised in the calling thread
-            box["error"] = exc
-        finally:
-            done.set()
-
-    thread = threading.Thread(target=target, daemon=True)
-    thread.start()
-    # Waiting on our own event, not on join(): a KeyboardInterrupt that lands inside
-    # Thread.join can leave is_alive() False while the work still runs (CPython 3.11),
-    # and the process then ended mid-fit with no file and an abort.
-    while True:
-        try:
-            if done.wait(0.2):
-                break
-        except KeyboardInterrupt:
-            print(f"\nsweepedit: {notice}", file=sys.stderr)
-            cancel.set()
-    thread.join()
-    if "error" in box:
-        raise box["error"]  # type: ignore[misc]
-    return box["value"]
+def _fit_options(args: argparse.Namespace) -> dict[str, object]:
+    """The fit settings the options name, as keywords of sweepedit.fit."""
+    return {"max_primitives": args.max_primitives, "tolerance": args.tolerance,
+            "method": args.method, "iterations": args.iterations,
+            "time_limit": args.time_limit, "device": args.device, "sweeper": args.sweeper,
+            "seed": args.seed, "restarts": args.restarts,
+            "control_points": args.control_points, "scaling_degree": args.scaling_degree,
+            "refine_iterations": args.refine_iterations,
+            "residual_rounds": args.residual_rounds, "min_gain": args.min_gain,
+            "surface_weight": args.surface_weight}
 
 
 def _fit_settings(args: argparse.Namespace) -> FitSettings:
-    from sweepedit.fitting.fit import FitSettings
+    from sweepedit.api import fit_settings
 
-    auto = args.primitives == "auto"
-    return FitSettings(primitives=args.max_primitives if auto else args.primitives,
-                       auto=auto, tolerance=args.tolerance, method=args.method,
-                       iterations=args.iterations, time_limit=args.time_limit,
-                       device=args.device,
-                       sweeper=args.sweeper, seed=args.seed, restarts=args.restarts,
-                       control_points=args.control_points, scaling_degree=args.scaling_degree,
-                       refine_iterations=args.refine_iterations,
-                       residual_rounds=args.residual_rounds, min_gain=args.min_gain,
-                       surface_weight=args.surface_weight)
-
-
-def fit_progress_text(p: FitProgress) -> tuple[str, str]:
-    """(description, postfix) of a progress bar for a FitProgress: the stage, its own
-    share, the primitives and the time left."""
-    left = "" if p.seconds_left is None else f", ~{p.seconds_left:.0f} s left"
-    restart = f" (restart {p.restart + 1})" if p.restart else ""
-    return (f"{p.stage}{restart}",
-            f"{p.stage_fraction:.0%} of stage, {len(p.abstraction.primitives)} primitives{left}")
+    return fit_settings(args.primitives, **_fit_options(args))
 
 
 def count_explanation(settings: FitSettings, kept: int, record: dict) -> str:
@@ -302,13 +224,23 @@ def count_explanation(settings: FitSettings, kept: int, record: dict) -> str:
     return ""
 
 
+def _json_line(record: dict[str, object]) -> None:
+    """One line of --progress-json: a JSON object, flushed at once (a reader follows it)."""
+    print(json.dumps(record, allow_nan=False), flush=True)
+
+
+def _progress_json(p: FitProgress) -> None:
+    _json_line({"event": "progress", "fraction": round(p.iteration / max(p.total, 1), 4),
+                "stage": p.stage, "stage_fraction": round(p.stage_fraction, 4),
+                "seconds_left": None if p.seconds_left is None else round(p.seconds_left, 1),
+                "primitives": len(p.abstraction.primitives)})
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     import threading
 
-    from tqdm import tqdm
-
     from sweepedit.io.mesh_export import mesh_format
-    from sweepedit.io.params import require_folder, write_abstraction
+    from sweepedit.io.params import require_folder
 
     if Path(args.output).suffix.lower() not in (".json", ".txt"):
         raise SweepeditError(f"{args.output}: parameter files end in .json or .txt")
@@ -318,60 +250,54 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if args.mesh:
         mesh_format(require_folder(args.mesh))
 
-    from sweepedit.analysis.metrics import evaluate
-    from sweepedit.fitting.fit import fit_abstraction
-    from sweepedit.io.shapes import load_shape
-    settings = _fit_settings(args)
-    settings.validate()  # before the shape loads and the progress bar is drawn
+    from sweepedit.api import evaluate, fit, load_shape
+
+    settings = _fit_settings(args)  # checked before the shape loads and the bar is drawn
     shape = load_shape(args.shape)
+    options = _fit_options(args)
     if settings.time_limit is not None:
         # The limit is the command's: loading (and importing torch) came out of it, and
         # writing the file and its metrics must fit in it too.
         spent = time.perf_counter() - _STARTED
-        settings.time_limit = max(settings.time_limit - spent - _WRITE_RESERVE_S, 0.05)
-    cancel = threading.Event()
-    bar = tqdm(total=100, desc="fitting", dynamic_ncols=True, disable=args.quiet,
-               bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}")
-
-    def progress(p: FitProgress) -> None:
-        desc, postfix = fit_progress_text(p)
-        bar.n = round(100 * p.iteration / max(p.total, 1))
-        bar.set_description_str(desc, refresh=False)
-        bar.set_postfix_str(postfix, refresh=False)
-        bar.refresh()
-
-    result = _run_cancellable(
-        lambda: fit_abstraction(shape, settings, callback=progress, cancel=cancel), cancel)
-    bar.n = 100
-    bar.close()
-    abstraction = result.abstraction
-    write_abstraction(abstraction, args.output)  # the result is safe before the metrics
+        options["time_limit"] = max(settings.time_limit - spent - _WRITE_RESERVE_S, 0.05)
+    progress = _progress_json if args.progress_json else not args.quiet
+    abstraction = fit(shape, args.primitives, progress=progress, cancel=threading.Event(),
+                      **options)
+    record = abstraction.fit or {}
+    abstraction.save(args.output)  # the result is safe before the metrics
     samples = _QUICK_METRIC_SAMPLES if args.time_limit else 100_000
-    metrics = evaluate(abstraction, shape, seed=args.seed, n_samples=samples)
+    metrics = evaluate(abstraction, shape, seed=args.seed, n_samples=samples).to_dict()
     metrics["samples"] = samples
-    metrics["seconds"] = result.seconds
-    abstraction.fit = {**(abstraction.fit or {}), "metrics": metrics}
-    write_abstraction(abstraction, args.output)
-    state = ("cancelled, best so far" if result.cancelled
-             else "time limit reached, best so far" if result.timed_out else "done")
-    print(f"{state}: {len(abstraction.primitives)} primitives in {result.seconds:.1f} s; "
-          f"IoU {metrics['iou']:.3f}, CD-L1 {metrics['cd_l1']:.4f}, "
-          f"F1@0.05 {metrics['f1_0.05']:.3f}, F1@0.01 {metrics['f1_0.01']:.3f} "
-          f"-> {args.output}")
-    why = count_explanation(settings, len(abstraction.primitives), abstraction.fit or {})
-    if why:
-        print(why)
+    metrics["seconds"] = record.get("seconds")
+    abstraction.fit = {**record, "metrics": metrics}
+    abstraction.save(args.output)
+    state = ("cancelled, best so far" if record.get("cancelled")
+             else "time limit reached, best so far" if record.get("timed_out") else "done")
+    why = count_explanation(settings, len(abstraction.primitives), record)
+    if args.progress_json:
+        _json_line({"event": "done", "state": state, "output": str(args.output),
+                    "primitives": len(abstraction.primitives), "explanation": why,
+                    "metrics": {k: v if not isinstance(v, float) or math.isfinite(v) else None
+                                for k, v in metrics.items()}})
+    else:
+        print(f"{state}: {len(abstraction.primitives)} primitives in "
+              f"{record.get('seconds', 0.0):.1f} s; {_metrics_text(metrics)} -> {args.output}")
+        if why:
+            print(why)
     if args.mesh:
-        from sweepedit.io.mesh_export import export_abstraction
-
-        export_abstraction(abstraction, args.mesh)
-        print(f"mesh -> {args.mesh}")
+        abstraction.export(args.mesh)
+        if not args.progress_json:
+            print(f"mesh -> {args.mesh}")
     if args.screenshot:
-        from sweepedit.analysis.render import render_abstraction
-
-        render_abstraction(abstraction, shape, args.screenshot)
-        print(f"picture -> {args.screenshot}")
+        abstraction.plot(shape, screenshot=args.screenshot)
+        if not args.progress_json:
+            print(f"picture -> {args.screenshot}")
     return 0
+
+
+def _metrics_text(metrics: dict[str, float]) -> str:
+    return (f"IoU {metrics['iou']:.3f}, CD-L1 {metrics['cd_l1']:.4f}, "
+            f"F1@0.05 {metrics['f1_0.05']:.3f}, F1@0.01 {metrics['f1_0.01']:.3f}")
 
 
 def _batch_options(args: argparse.Namespace, outdir: Path, *, resume: bool,
@@ -566,16 +492,19 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("export", help="sweep a parameter file into a mesh (OBJ, PLY, STL, "
-                                      "GLB) or CAD solids (STEP)")
+                                      "GLB), CAD solids (STEP) or Blender curves (.blend)")
     p.add_argument("params", help="parameter file (.json or official .txt)")
     p.add_argument("-o", "--output", required=True,
-                   help="file to write: a mesh, or .step/.stp for one smooth solid per "
-                        "visible primitive (needs the 'cad' extra)")
+                   help="file to write: a mesh, .step/.stp for one smooth solid per "
+                        "visible primitive (needs the 'cad' extra), .blend for one Blender "
+                        "curve object per primitive (needs Blender's bpy), or .json/.txt")
     p.add_argument("--per-primitive", action="store_true",
                    help="write one file per primitive (OUTPUT_NN.ext) instead of the union")
     p.add_argument("--union", action="store_true",
                    help="STEP: one fused solid instead of one solid per primitive")
     p.add_argument("--quiet", action="store_true", help="STEP: no progress bar")
+    p.add_argument("--target", metavar="SHAPE",
+                   help=".blend: the shape file, added beside the curves as a mesh object")
     p.add_argument("--original-frame", action="store_true",
                    help="map back through the normalisation to the shape's original frame")
     p.add_argument("--stations", type=_int_at_least(2), default=64,
@@ -618,6 +547,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mesh", metavar="MESH", help="also export the union mesh")
     p.add_argument("--screenshot", metavar="PNG", help="also render the result over the shape")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--progress-json", action="store_true",
+                   help="for programs that run sweepedit (the Blender add-on): instead of the "
+                        "bar and the summary, one JSON object per line on stdout, "
+                        '{"event": "progress", "fraction", "stage", "stage_fraction", '
+                        '"seconds_left", "primitives"} as the fit goes and {"event": "done", '
+                        '"output", "primitives", "metrics", ...} at the end')
     p.set_defaults(func=_cmd_fit)
 
     p = sub.add_parser("batch", help="fit many shapes (files, folders, globs, lists) on Ray, "

@@ -345,7 +345,7 @@ def test_fit_time_limit_returns_in_time_with_a_valid_file(tmp_path: Path, capsys
 def test_fit_progress_text_names_the_stage_and_the_time_left() -> None:
     from types import SimpleNamespace
 
-    from sweepedit.cli import fit_progress_text
+    from sweepedit.api import fit_progress_text
 
     p = SimpleNamespace(stage="residual round 1 of 2", stage_fraction=0.4, seconds_left=3.2,
                         restart=0, abstraction=Abstraction([]))

@@ -1,5 +1,5 @@
-"""Off-screen PyVista pictures: a shape with its skeleton, an abstraction over its shape,
-and a contact sheet of many. Every PNG is written atomically (temporary file, rename)."""
+"""PyVista pictures: a shape with its skeleton, an abstraction over its shape (off screen,
+or shown), and a contact sheet of many. Every PNG is written atomically (temporary file, rename)."""
 
 from __future__ import annotations
 
@@ -87,6 +87,21 @@ def render_abstraction(abstraction: Abstraction, shape: Shape | None, path_png: 
         return _screenshot(plotter, path_png)
     finally:
         plotter.close()
+
+
+def show_abstraction(abstraction: Abstraction, shape: Shape | None,
+                     window_size: tuple[int, int] = (800, 600)) -> None:
+    """The picture of render_abstraction in a PyVista window (or, in Jupyter, PyVista's
+    notebook backend), for a user to turn around."""
+    import pyvista as pv
+
+    plotter = pv.Plotter(window_size=list(window_size))
+    plotter.set_background("white")
+    if shape is not None:
+        _add_shape(plotter, shape, opacity=0.15)
+    _add_primitives(plotter, abstraction)
+    _finish_view(plotter, shape, f"{len(abstraction.visible())} primitives", None)
+    plotter.show()
 
 
 def render_contact_sheet(items: Sequence[tuple[str, Shape | None, Abstraction]],

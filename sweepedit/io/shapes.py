@@ -38,6 +38,7 @@ import re
 import struct
 import zipfile
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -213,6 +214,79 @@ def load_shape(path: str | Path, resolution: int = occ.DEFAULT_RESOLUTION,
         raise FileFormatError(path, f"cannot read the {ext} file ({type(exc).__name__}: "
                                     f"{_short(exc)})") from exc
     shape.sha256 = digest
+    check_fittable(shape)
+    return shape
+
+
+def mesh_shape(vertices: np.ndarray, faces: np.ndarray, *, name: str = "mesh",
+               resolution: int = occ.DEFAULT_RESOLUTION, n_samples: int = occ.DEFAULT_SAMPLES,
+               seed: int = 0) -> Shape:
+    """A shape from a triangle mesh in memory: vertices (V, 3), faces (F, 3) integer
+    indices into them. Treated exactly as a mesh file (merged, normalised, voxelised);
+    `name` stands for the file in messages and as `Shape.name`."""
+    path = Path(name)
+    vertices = _array(path, vertices, "vertices", np.float64)
+    faces = _array(path, faces, "faces", np.int64)
+    return _in_memory(path, (vertices, faces), lambda: _shape_from_mesh(
+        path, vertices, faces, resolution, n_samples, seed), resolution, n_samples)
+
+
+def points_shape(points: np.ndarray, *, name: str = "points",
+                 resolution: int = occ.DEFAULT_RESOLUTION, n_samples: int = occ.DEFAULT_SAMPLES,
+                 seed: int = 0) -> Shape:
+    """A shape from (P, 3) points in memory, treated as a point-cloud file."""
+    path = Path(name)
+    points = _array(path, points, "points", np.float64)
+    return _in_memory(path, (points,), lambda: _shape_from_points(
+        path, points, resolution, n_samples, seed), resolution, n_samples)
+
+
+def voxels_shape(grid: np.ndarray, *, name: str = "voxels",
+                 resolution: int = occ.DEFAULT_RESOLUTION, n_samples: int = occ.DEFAULT_SAMPLES,
+                 seed: int = 0) -> Shape:
+    """A shape from an (X, Y, Z) voxel array in memory ([ix, iy, iz]; bool, integer != 0
+    or float > 0.5 is occupied), treated as a .npy file: each voxel a unit cube."""
+    path = Path(name)
+    occupied = _voxel_grid(path, np.asarray(grid))
+    return _in_memory(path, (occupied,), lambda: _shape_from_voxels(
+        path, occupied, np.zeros(3), np.array(occupied.shape, dtype=np.float64), resolution,
+        n_samples, seed), resolution, n_samples)
+
+
+def _array(path: Path, value: object, what: str, dtype: type) -> np.ndarray:
+    """value as an (N, 3) array of dtype, or FileFormatError naming `path`."""
+    try:
+        array = np.asarray(value)
+        if array.ndim != 2 or array.shape[1] != 3:
+            raise ValueError(f"{what} must be an (N, 3) array, got shape {array.shape}")
+        if dtype is np.int64 and array.size and not np.issubdtype(array.dtype, np.integer):
+            raise ValueError(f"{what} must be integer indices, got {array.dtype}")
+        return array.astype(dtype, copy=False)
+    except (TypeError, ValueError) as exc:
+        raise FileFormatError(path, str(exc)) from None
+
+
+def _in_memory(path: Path, arrays: tuple[np.ndarray, ...], build: Callable[[], Shape],
+               resolution: int, n_samples: int) -> Shape:
+    """Run build() as load_shape runs a reader: its data errors name `path`; the shape's
+    sha256 is of the arrays' bytes."""
+    if resolution < 4:
+        raise ValueError(f"resolution must be at least 4, got {resolution}")
+    if n_samples < 1:
+        raise ValueError(f"n_samples must be positive, got {n_samples}")
+    try:
+        shape = build()
+    except FileFormatError:
+        raise
+    except MemoryError:
+        raise FileFormatError(path, "not enough memory to load it") from None
+    except _DATA_ERRORS as exc:
+        raise FileFormatError(path, f"cannot use the data ({type(exc).__name__}: "
+                                    f"{_short(exc)})") from exc
+    digest = hashlib.sha256()
+    for array in arrays:
+        digest.update(np.ascontiguousarray(array).tobytes())
+    shape.sha256 = digest.hexdigest()
     check_fittable(shape)
     return shape
 
@@ -410,7 +484,13 @@ def _read_voxels(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray, np.ndarr
                                             f"{_short(exc)})") from exc
     else:
         array = loaded
-    array = np.asarray(array)
+    grid = _voxel_grid(path, np.asarray(array))
+    return grid, np.zeros(3), np.array(grid.shape, dtype=np.float64)
+
+
+def _voxel_grid(path: Path, array: np.ndarray) -> np.ndarray:
+    """An array read as voxels -> (X, Y, Z) bool occupancy (leading axes of size 1
+    dropped), or FileFormatError naming `path`."""
     while array.ndim > 3 and array.shape[0] == 1:
         array = array[0]
     if array.ndim != 3:
@@ -425,7 +505,7 @@ def _read_voxels(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray, np.ndarr
         grid = array > 0.5
     else:
         raise FileFormatError(path, f"unsupported voxel dtype {array.dtype}")
-    return grid, np.zeros(3), np.array(grid.shape, dtype=np.float64)
+    return grid
 
 
 def _read_binvox(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
