@@ -79,7 +79,7 @@ class FileControl(QObject):
         self.prompts.show_status(f"Loading {path.name}…", 0)
         QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
         try:
-            from sweepedit.io.shapes import load_shape
+            from sweepedit.api import load_shape
 
             shape = call_keeping_window_live(lambda: load_shape(path))
         except Exception as exc:  # any loader failure is the file's, not the app's
@@ -126,9 +126,9 @@ class FileControl(QObject):
         if self.busy() or (ask and not self.maybe_save()):
             return False
         try:
-            from sweepedit.io.params import read_abstraction
+            from sweepedit.api import load
 
-            abstraction = read_abstraction(path)
+            abstraction = load(path)
         except Exception as exc:
             self.prompts.report_error("Cannot open parameters", open_failure_text(exc, path))
             return False
@@ -226,9 +226,9 @@ class FileControl(QObject):
         """Write the primitives to `path` (.json, or .txt for the official format)."""
         path = Path(path)
         try:
-            from sweepedit.io.params import write_abstraction
+            from sweepedit.api import export
 
-            write_abstraction(self.doc.abstraction, path)
+            export(self.doc.abstraction, path)
         except Exception as exc:
             self.prompts.report_error("Cannot save", save_failure_text(exc, path))
             return False
@@ -268,12 +268,11 @@ class FileControl(QObject):
         watertight mesh, or one file per primitive (STEM_00.EXT, ...)."""
         path = Path(path)
         try:
-            from sweepedit.io.mesh_export import export_abstraction
+            from sweepedit.api import export
 
             visible = self.doc.abstraction.copy()
             visible.primitives = visible.visible()
-            written = export_abstraction(visible, path, per_primitive=per_primitive,
-                                         original_frame=True)
+            written = export(visible, path, per_primitive=per_primitive, original_frame=True)
         except Exception as exc:
             self.prompts.report_error("Cannot export mesh", save_failure_text(exc, path))
             return False
