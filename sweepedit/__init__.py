@@ -17,14 +17,14 @@ from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
-_API = ("Abstraction", "Metrics", "evaluate", "export", "fit", "fit_settings", "inside",
-        "load", "load_shape")
+_API = ("Abstraction", "Metrics", "evaluate", "example", "export", "fit", "fit_settings",
+        "inside", "load", "load_shape")
 _ELSEWHERE = {"Shape": "sweepedit.io.shapes", "SweepPrimitive": "sweepedit.geometry.model",
               "Normalization": "sweepedit.geometry.model",
               "SweepeditError": "sweepedit.errors", "FileFormatError": "sweepedit.errors"}
 # Spelled out (not built from the two above) so that linters and IDEs read it.
 __all__ = ["Abstraction", "FileFormatError", "Metrics", "Normalization", "Shape",
-           "SweepPrimitive", "SweepeditError", "__version__", "evaluate", "export", "fit",
+           "SweepPrimitive", "SweepeditError", "__version__", "evaluate", "example", "export", "fit",
            "fit_settings", "inside", "load", "load_shape"]
 
 if TYPE_CHECKING:
@@ -32,6 +32,7 @@ if TYPE_CHECKING:
         Abstraction,
         Metrics,
         evaluate,
+        example,
         export,
         fit,
         fit_settings,

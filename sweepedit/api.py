@@ -110,6 +110,19 @@ def load_shape(source: ShapeSource, *, resolution: int = 64, n_samples: int = 32
                          "trimesh.Trimesh, a PyVista dataset, (N, 3) points or a voxel array")
 
 
+def example(name: str = "cactus") -> Path:
+    """The path of a shape bundled with sweepedit (the benchmark set,
+    sweepedit/resources/benchmark, with its licences), by name: "cactus", "spot",
+    "knot1", ...; for trying things out without a file of one's own."""
+    from sweepedit.io.benchmark_set import BENCHMARK_DIR, benchmark_shapes
+
+    shapes = {Path(s.path).stem: Path(s.path) for s in benchmark_shapes(BENCHMARK_DIR)}
+    if name not in shapes:
+        raise SweepeditError(f"no bundled shape named {name!r}; there are "
+                             f"{', '.join(sorted(shapes))}")
+    return shapes[name]
+
+
 def _is_instance(value: object, module: str, name: str) -> bool:
     """isinstance(value, module.name), without importing `module`: a value of its types
     exists only once the user has imported it."""
@@ -513,7 +526,9 @@ def export(abstraction: model.Abstraction | PathLike, path: PathLike, *,
     if union and not is_step_path(path):
         raise SweepeditError("--union is for STEP files; a mesh export is the union already")
     if suffix in (".json", ".txt"):
-        _no_options(path, options, per_primitive, original_frame)
+        # original_frame is moot: a JSON file carries the normalisation beside the
+        # primitives (the official .txt has no frame at all).
+        _no_options(path, options, per_primitive)
         return [chosen.save(path)]
     if is_step_path(path):
         if per_primitive:
@@ -568,5 +583,5 @@ def _export_blend(abstraction: Abstraction, path: PathLike, original_frame: bool
     return Path(report.path)
 
 
-__all__ = ["Abstraction", "Metrics", "evaluate", "export", "fit", "fit_settings", "inside",
-           "load", "load_shape"]
+__all__ = ["Abstraction", "Metrics", "evaluate", "example", "export", "fit", "fit_settings",
+           "inside", "load", "load_shape"]
