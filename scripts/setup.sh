@@ -23,7 +23,7 @@ fi
 
 py="${PYTHON:-python3}"
 stamp=".venv/.setup-stamp"
-want="$(cat requirements.txt pyproject.toml | sha256sum | cut -d' ' -f1)"
+want="$(cat requirements.txt pyproject.toml scripts/requirements-blender.txt | sha256sum | cut -d' ' -f1)"
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
   exit 0
 fi
@@ -34,5 +34,23 @@ pip=(.venv/bin/python -m pip -q --disable-pip-version-check)
 "${pip[@]}" install torch==2.13.0
 "${pip[@]}" install -r requirements.txt
 "${pip[@]}" install --no-deps --no-build-isolation -e .
+
+# Blender's bpy for .blend export, in an environment of its own (.venv-blender): it pins
+# numpy < 2. Optional: where it cannot be installed, set-up goes on without it.
+blender_env() {
+  if ! "$py" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+    echo "[setup] Blender export unavailable: bpy 5.0 needs Python 3.11, $py is $("$py" -V 2>&1)"
+    return 0
+  fi
+  [ -x .venv-blender/bin/python ] || "$py" -m venv .venv-blender || {
+    echo "[setup] Blender export unavailable: could not create .venv-blender"; return 0; }
+  if ! .venv-blender/bin/python -m pip -q --disable-pip-version-check install \
+      -r scripts/requirements-blender.txt >/tmp/sweepedit-setup-bpy.log 2>&1; then
+    echo "[setup] Blender export unavailable: installing bpy failed" \
+      "($(tail -n 1 /tmp/sweepedit-setup-bpy.log))"
+  fi
+  return 0
+}
+blender_env
 echo "$want" > "$stamp"
 echo "[setup] environment ready in .venv"
