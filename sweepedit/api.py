@@ -578,8 +578,8 @@ def _export_blend(abstraction: Abstraction, path: PathLike, original_frame: bool
         target = (np.asarray(target.surface.vertices), np.asarray(target.surface.faces))
     report = export_blend(abstraction, path, original_frame=original_frame,
                           target_mesh=target, **options)
-    for note in getattr(report, "notes", ()):
-        print(f"sweepedit: {note}", file=sys.stderr)
+    for line in report.lines():  # never silently: what Blender cannot draw exactly
+        print(f"sweepedit: {line}", file=sys.stderr)
     return Path(report.path)
 
 
