@@ -1,5 +1,5 @@
 """`sweepedit batch` on Ray: throughput, the engine's overhead, a simulated cluster that
-loses a node, and the scale on paper (BENCHMARKS.md, "Batch (issue 17)").
+loses a node, and the scale on paper (BENCHMARKS.md, "Batch on Ray").
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_batch.py [--shapes DIR]
         [--out bench-out/batch] [--price 0.045] [--smoke]

@@ -44,7 +44,7 @@ WORKER_NICENESS = 10
 # hundred items, Qt's event processing, rendering), and beside a thread running Python
 # (torch's import, the fit's own Python) it waits a whole interval to get it back each
 # time: a preview of 8 primitives took 302 ms beside one such thread at 5 ms, 58 ms at
-# 0.5 ms (BENCHMARKS.md, "The GUI thread and the GIL").
+# 0.5 ms (BENCHMARKS.md, "App responsiveness").
 GUI_SWITCH_INTERVAL_S = 0.0005
 
 

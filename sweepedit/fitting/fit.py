@@ -6,7 +6,7 @@
   radius and scaling included) go straight into refinement (sweepedit.fitting.refine),
   whose residual rounds add primitives where the shape is missed. On the benchmark
   shapes this matches the network path's quality in a fraction of the time
-  (BENCHMARKS.md, "Abstract in seconds").
+  (docs/benchmark-log.md, "Quality and speed of the default fit").
 - "network": the paper's method: the voxel encoder and two heads trained per shape
   (with the analytic or the neural sweeper, reconstruction, overlap, parsimony and axis
   losses), then the same refinement.
