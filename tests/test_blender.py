@@ -320,3 +320,31 @@ def test_the_addon_installs_and_its_operators_run(tmp_path: Path) -> None:
     # the fake fit's normalisation (centre (0, 0, 0.5), scale 2) on the cube at x = 5
     expected = np.array([-0.3, 0.0, 0.0]) * 2.0 + [0.0, 0.0, 0.5] + [5.0, 0.0, 0.0]
     assert np.allclose(found["fitted_point"], expected, atol=1e-5)
+
+
+@needs_blender
+def test_blenders_axis_is_sweepedits_axis(exported, tmp_path: Path) -> None:
+    """Blender's endpoint NURBS of order 3 evaluates to the clamped quadratic B-spline,
+    at evenly spaced t (resolution_u points per knot span)."""
+    from sweepedit.geometry.sweep import axis_points
+
+    path, _ = exported
+    proc = _blender_script(ARGS + """
+        import bpy, json
+        bpy.ops.wm.open_mainfile(filepath=argv[0])
+        out = {}
+        for name in ("straight", "bent"):
+            ob = bpy.data.objects[name]
+            ob.data.bevel_mode = "ROUND"
+            ob.data.bevel_depth = 0.0
+            ob.data.taper_object = None
+            me = ob.evaluated_get(bpy.context.evaluated_depsgraph_get()).to_mesh()
+            out[name] = [list(v.co) for v in me.vertices]
+        print("RESULT" + json.dumps(out))
+    """.replace("\n        ", "\n"), tmp_path, str(path))
+    found = json.loads(next(ln[6:] for ln in proc.stdout.splitlines() if ln.startswith("RESULT")))
+    for prim in _primitives()[:2]:
+        points = np.array(found[prim.name])
+        t = np.linspace(0.0, 1.0, len(points))
+        assert len(points) >= 64
+        assert np.allclose(points, axis_points(prim.control_points[None], t)[0], atol=1e-6)

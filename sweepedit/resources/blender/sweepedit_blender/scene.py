@@ -244,9 +244,12 @@ def build(doc: dict, name: str, *, parent_collection: bpy.types.Collection | Non
     parent_collection = parent_collection or bpy.context.scene.collection
     coll = bpy.data.collections.new(name)
     parent_collection.children.link(coll)
+    # The bevel and taper curves: hidden (Blender still evaluates them); show the
+    # collection in the outliner to edit them.
     helpers = bpy.data.collections.new(f"{name} profiles")
     coll.children.link(helpers)
     helpers.hide_render = True
+    helpers.hide_viewport = True
 
     normalization = doc.get("normalization") or {"center": [0.0, 0.0, 0.0], "scale": 1.0}
     if frame_matrix is None and original_frame:
