@@ -254,10 +254,15 @@ def _in_notebook() -> bool:
 
 
 def load(path: PathLike) -> Abstraction:
-    """Read a parameter file: sweepedit JSON, or the official SweepNet text (.txt).
+    """Read a parameter file: sweepedit JSON, the official SweepNet text (.txt), or a
+    .blend that sweepedit wrote (its curves as edited in Blender; docs/blender.md).
 
     Raises FileFormatError naming the file, the primitive and the field of a bad value.
     """
+    if Path(path).suffix.lower() == ".blend":
+        from sweepedit.io.blend_export import read_blend
+
+        return Abstraction.of(read_blend(path))
     from sweepedit.io.params import read_abstraction
 
     return Abstraction.of(read_abstraction(path))

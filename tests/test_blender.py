@@ -348,3 +348,24 @@ def test_blenders_axis_is_sweepedits_axis(exported, tmp_path: Path) -> None:
         t = np.linspace(0.0, 1.0, len(points))
         assert len(points) >= 64
         assert np.allclose(points, axis_points(prim.control_points[None], t)[0], atol=1e-6)
+
+
+@needs_blender
+def test_the_command_line_exports_and_reads_back_blend(tmp_path: Path, capsys) -> None:
+    """`sweepedit export PARAMS -o X.blend --target SHAPE` and `sweepedit convert X.blend
+    Y.json`: the parameters come back exactly, through the same API as code uses."""
+    import sweepedit
+    from sweepedit.cli import main
+
+    params = tmp_path / "in.json"
+    write_abstraction(_abstraction(), params)
+    blend = tmp_path / "out.blend"
+    cactus = ROOT / "resources" / "examples" / "cactus.off"
+    assert main(["export", str(params), "-o", str(blend), "--target", str(cactus)]) == 0
+    err = capsys.readouterr().err
+    assert "star: profile drawn as a polygon" in err and "folded: " in err  # never silently
+    back = tmp_path / "back.json"
+    assert main(["convert", str(blend), str(back)]) == 0
+    assert abstraction_to_json(sweepedit.load(back)) == abstraction_to_json(_abstraction())
+    with pytest.raises(SweepeditError, match="--per-primitive"):
+        sweepedit.export(params, tmp_path / "x.blend", per_primitive=True)

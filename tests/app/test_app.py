@@ -811,8 +811,19 @@ def test_qt_calls_keep_python_reference_counts(qtbot) -> None:
     they are immortal and this holds trivially)."""
     import gc
     import sys
+    import threading
 
+    from sweepedit.app import worker
     from sweepedit.app.widgets.slider_spin import SliderSpin
+
+    # Python threads of earlier tests change the counts while they run: in a fresh
+    # clone the app's preload of the fit API (torch, numba compiling its loops cold) was
+    # still importing here and freed 388-1089 references to None per pass. Let them end.
+    for thread in threading.enumerate():
+        if thread is not threading.main_thread() and thread.name.startswith("sweepedit"):
+            thread.join(timeout=300)
+    if worker._preload_thread is not None:
+        worker._preload_thread.join(timeout=300)
 
     widget = SliderSpin(0.0, 1.0)
     qtbot.addWidget(widget)
@@ -837,8 +848,10 @@ def test_qt_calls_keep_python_reference_counts(qtbot) -> None:
         drops.append((abs(sys.getrefcount(None) - none_before),
                       abs(sys.getrefcount(True) - true_before)))
     assert len(seen) >= 3 * 1900
-    assert min(d[0] for d in drops) < 200, drops
-    assert min(d[1] for d in drops) < 200, drops
+    # The bug drops one reference per void call: at least 2,000 per pass (setValue alone).
+    others = [t.name for t in threading.enumerate() if t is not threading.main_thread()]
+    assert min(d[0] for d in drops) < 500, (drops, others)
+    assert min(d[1] for d in drops) < 500, (drops, others)
 
 
 def test_fit_panel_values_become_fit_settings(qtbot) -> None:
