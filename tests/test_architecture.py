@@ -16,7 +16,7 @@ BELOW = {
     "analysis": {"geometry", "io"},
     "fitting": {"geometry", "io", "analysis"},
     "batch": {"geometry", "io", "analysis", "fitting"},
-    "app": {"geometry", "io", "analysis", "fitting"},
+    "app": {"geometry", "io", "analysis", "fitting", "api"},
     "training": {"geometry", "io", "analysis", "fitting"},
 }
 
@@ -62,3 +62,15 @@ def test_one_qt_control_per_module(folder: str) -> None:
     modules = {path.name: _qt_classes(path) for path in sorted((PACKAGE / folder).glob("*.py"))}
     assert any(modules.values())
     assert {name: found for name, found in modules.items() if len(found) > 1} == {}
+
+
+def test_the_public_api_sits_below_the_app_and_the_command_line() -> None:
+    """sweepedit/api.py (what `import sweepedit` gives) uses the packages that do the
+    work, never the app, batch, training or the command line; sweepedit/__init__.py
+    imports nothing of sweepedit at import time (its names load on first use)."""
+    assert _imported_packages(PACKAGE / "api.py") <= {"geometry", "io", "analysis", "fitting",
+                                                       "errors"}
+    init = ast.parse((PACKAGE / "__init__.py").read_text(encoding="utf-8"))
+    eager = [node for node in init.body if isinstance(node, ast.Import | ast.ImportFrom)
+             and (getattr(node, "module", "") or "").startswith("sweepedit")]
+    assert eager == []
