@@ -24,15 +24,20 @@ SURFACE_COLOR = "#b0b8c8"
 
 
 def _offscreen_plotter(window_size: Sequence[int], **kwargs: Any) -> Any:
-    """An off-screen plotter. Without an X display VTK falls back on its off-screen
-    context by itself, after warning about the missing X server: that warning says
-    nothing to a user, so it is silenced."""
+    """An off-screen plotter (its X-server warning silenced)."""
     import pyvista as pv
+
+    _quiet_without_display()
+    return pv.Plotter(off_screen=True, window_size=list(window_size), **kwargs)
+
+
+def _quiet_without_display() -> None:
+    """Without an X display VTK falls back on its off-screen context by itself, after
+    warning about the missing X server: that warning says nothing to a user."""
     import vtk
 
     if not os.environ.get("DISPLAY"):
         vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_ERROR)
-    return pv.Plotter(off_screen=True, window_size=list(window_size), **kwargs)
 
 
 def render_shape(shape: Shape, skeleton: Skeleton | None, path_png: str | Path,
@@ -95,6 +100,7 @@ def show_abstraction(abstraction: Abstraction, shape: Shape | None,
     notebook backend), for a user to turn around."""
     import pyvista as pv
 
+    _quiet_without_display()  # a notebook's static picture is rendered off screen
     plotter = pv.Plotter(window_size=list(window_size))
     plotter.set_background("white")
     if shape is not None:
