@@ -24,8 +24,8 @@ _ELSEWHERE = {"Shape": "sweepedit.io.shapes", "SweepPrimitive": "sweepedit.geome
               "SweepeditError": "sweepedit.errors", "FileFormatError": "sweepedit.errors"}
 # Spelled out (not built from the two above) so that linters and IDEs read it.
 __all__ = ["Abstraction", "FileFormatError", "Metrics", "Normalization", "Shape",
-           "SweepPrimitive", "SweepeditError", "__version__", "evaluate", "example", "export", "fit",
-           "fit_settings", "inside", "load", "load_shape"]
+           "SweepPrimitive", "SweepeditError", "__version__", "evaluate", "example", "export",
+           "fit", "fit_settings", "inside", "load", "load_shape"]
 
 if TYPE_CHECKING:
     from sweepedit.api import (
