@@ -45,6 +45,9 @@ def test_import_is_light_and_names_load_on_use() -> None:
         assert f"'{name}'" in out
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         _ = sweepedit.nope
+    # __all__ is spelled out for linters: it must name exactly what loads on use.
+    assert set(sweepedit.__all__) == {*sweepedit._API, *sweepedit._ELSEWHERE, "__version__"}
+    assert all(getattr(sweepedit, name) is not None for name in sweepedit.__all__)
 
 
 def test_load_shape_from_memory_matches_the_file(tmp_path: Path) -> None:
