@@ -170,10 +170,7 @@ def load_shape(path: str | Path, resolution: int = occ.DEFAULT_RESOLUTION,
     Raises FileFormatError naming the file for any unreadable or unusable input.
     """
     path = Path(path)
-    if resolution < 4:
-        raise ValueError(f"resolution must be at least 4, got {resolution}")
-    if n_samples < 1:
-        raise ValueError(f"n_samples must be positive, got {n_samples}")
+    _check_options(resolution, n_samples)
     ext = path.suffix.lower()
     if ext not in SUPPORTED_EXTENSIONS:
         raise FileFormatError(path, f"unknown file type '{path.suffix or '(none)'}'; "
@@ -193,29 +190,19 @@ def load_shape(path: str | Path, resolution: int = occ.DEFAULT_RESOLUTION,
     repaired = _repaired_mesh_bytes(path, ext, data)
     del data
 
-    try:
+    def read() -> Shape:
         if ext in VOXEL_EXTENSIONS:
             grid, lower, upper = _read_voxels(path, ext)
-            shape = _shape_from_voxels(path, grid, lower, upper, resolution, n_samples, seed)
-        elif ext in POINT_EXTENSIONS:
-            shape = _shape_from_points(path, _read_point_text(path), resolution, n_samples,
-                                       seed)
-        else:
-            vertices, faces, points = _read_mesh(path, ext, repaired)
-            if faces is not None:
-                shape = _shape_from_mesh(path, vertices, faces, resolution, n_samples, seed)
-            else:
-                shape = _shape_from_points(path, points, resolution, n_samples, seed)
-    except FileFormatError:
-        raise
-    except MemoryError:
-        raise FileFormatError(path, "not enough memory to load it") from None
-    except _DATA_ERRORS as exc:
-        raise FileFormatError(path, f"cannot read the {ext} file ({type(exc).__name__}: "
-                                    f"{_short(exc)})") from exc
-    shape.sha256 = digest
-    check_fittable(shape)
-    return shape
+            return _shape_from_voxels(path, grid, lower, upper, resolution, n_samples, seed)
+        if ext in POINT_EXTENSIONS:
+            return _shape_from_points(path, _read_point_text(path), resolution, n_samples,
+                                      seed)
+        vertices, faces, points = _read_mesh(path, ext, repaired)
+        if faces is not None:
+            return _shape_from_mesh(path, vertices, faces, resolution, n_samples, seed)
+        return _shape_from_points(path, points, resolution, n_samples, seed)
+
+    return _finished(_built(path, read, f"cannot read the {ext} file"), digest)
 
 
 def mesh_shape(vertices: np.ndarray, faces: np.ndarray, *, name: str = "mesh",
@@ -270,23 +257,38 @@ def _in_memory(path: Path, arrays: tuple[np.ndarray, ...], build: Callable[[], S
                resolution: int, n_samples: int) -> Shape:
     """Run build() as load_shape runs a reader: its data errors name `path`; the shape's
     sha256 is of the arrays' bytes."""
+    _check_options(resolution, n_samples)
+    shape = _built(path, build, "cannot use the data")
+    digest = hashlib.sha256()
+    for array in arrays:
+        digest.update(np.ascontiguousarray(array).tobytes())
+    return _finished(shape, digest.hexdigest())
+
+
+def _check_options(resolution: int, n_samples: int) -> None:
     if resolution < 4:
         raise ValueError(f"resolution must be at least 4, got {resolution}")
     if n_samples < 1:
         raise ValueError(f"n_samples must be positive, got {n_samples}")
+
+
+def _built(path: Path, build: Callable[[], Shape], failure: str) -> Shape:
+    """build(), with the errors our own code raises on unusual data reported against
+    `path` as `failure` and the exception; anything else is a bug and propagates."""
     try:
-        shape = build()
+        return build()
     except FileFormatError:
         raise
     except MemoryError:
         raise FileFormatError(path, "not enough memory to load it") from None
     except _DATA_ERRORS as exc:
-        raise FileFormatError(path, f"cannot use the data ({type(exc).__name__}: "
+        raise FileFormatError(path, f"{failure} ({type(exc).__name__}: "
                                     f"{_short(exc)})") from exc
-    digest = hashlib.sha256()
-    for array in arrays:
-        digest.update(np.ascontiguousarray(array).tobytes())
-    shape.sha256 = digest.hexdigest()
+
+
+def _finished(shape: Shape, digest: str) -> Shape:
+    """The shape with its digest, once it is known to have something to fit."""
+    shape.sha256 = digest
     check_fittable(shape)
     return shape
 
