@@ -170,24 +170,14 @@ class Abstraction(model.Abstraction):
         coloured as in the app. Normalised frame unless ``original_frame``."""
         import trimesh
 
-        from sweepedit.geometry.solid import solid_mesh, solid_union
+        from sweepedit.io.mesh_export import trimesh_of
 
-        def as_trimesh(mesh: Any, color: str | None = None) -> trimesh.Trimesh:
-            vertices = (self.normalization.to_original(mesh.vertices) if original_frame
-                        else mesh.vertices)
-            out = trimesh.Trimesh(vertices, mesh.faces, process=False)
-            if color:
-                rgb = [int(color[i:i + 2], 16) for i in (1, 3, 5)]
-                out.visual.face_colors = np.tile([*rgb, 255], (len(mesh.faces), 1))
-            return out
-
-        self._require_primitives()
+        meshes = self._solid_meshes(per_primitive, original_frame)
         if not per_primitive:
-            return as_trimesh(solid_union(self.primitives))
+            return trimesh_of(meshes[0][1])
         scene = trimesh.Scene()
-        for p in self.primitives:
-            scene.add_geometry(as_trimesh(solid_mesh(p), p.color), geom_name=p.name,
-                               node_name=p.name)
+        for p, mesh in meshes:
+            scene.add_geometry(trimesh_of(mesh, p.color), geom_name=p.name, node_name=p.name)
         return scene
 
     def to_pyvista(self, *, per_primitive: bool = False,
@@ -197,22 +187,28 @@ class Abstraction(model.Abstraction):
         colour in the block's ``field_data["color"]``)."""
         import pyvista as pv
 
-        from sweepedit.geometry.solid import solid_mesh, solid_union
-
-        def as_poly(mesh: Any) -> pv.PolyData:
-            vertices = (self.normalization.to_original(mesh.vertices) if original_frame
-                        else mesh.vertices)
-            return pv.PolyData.from_regular_faces(np.asarray(vertices), mesh.faces)
-
-        self._require_primitives()
+        meshes = self._solid_meshes(per_primitive, original_frame)
         if not per_primitive:
-            return as_poly(solid_union(self.primitives))
+            return pv.PolyData.from_regular_faces(meshes[0][1].vertices, meshes[0][1].faces)
         blocks = pv.MultiBlock()
-        for p in self.primitives:
-            poly = as_poly(solid_mesh(p))
+        for p, mesh in meshes:
+            poly = pv.PolyData.from_regular_faces(mesh.vertices, mesh.faces)
             poly.field_data["color"] = [p.color]
             blocks[p.name] = poly
         return blocks
+
+    def _solid_meshes(self, per_primitive: bool, original_frame: bool
+                      ) -> list[tuple[model.SweepPrimitive | None, Any]]:
+        """(primitive, its solid's TriangleMesh) each, or [(None, the union's)], in the
+        frame asked for; an error when there are no primitives."""
+        from sweepedit.geometry.solid import solid_mesh, solid_union
+        from sweepedit.io.mesh_export import in_frame
+
+        if not self.primitives:
+            raise SweepeditError("the abstraction has no primitives")
+        pairs = ([(p, solid_mesh(p)) for p in self.primitives] if per_primitive
+                 else [(None, solid_union(self.primitives))])
+        return [(p, in_frame(mesh, self.normalization, original_frame)) for p, mesh in pairs]
 
     def export(self, path: PathLike, **options: Any) -> list[Path]:
         """Write the abstraction in the format `path` names; see ``sweepedit.export``."""
@@ -234,10 +230,6 @@ class Abstraction(model.Abstraction):
             return render.render_abstraction(self, target, out, window_size)
         render.show_abstraction(self, target, window_size)
         return None
-
-    def _require_primitives(self) -> None:
-        if not self.primitives:
-            raise SweepeditError("the abstraction has no primitives")
 
 
 def _has_display() -> bool:

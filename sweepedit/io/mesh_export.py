@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -11,6 +12,9 @@ from sweepedit.geometry.mesher import DISPLAY_PROFILE_POINTS, DISPLAY_STATIONS, 
 from sweepedit.geometry.model import Abstraction, Normalization
 from sweepedit.geometry.solid import solid_mesh, solid_union
 from sweepedit.io.params import atomic_write_bytes, require_folder
+
+if TYPE_CHECKING:
+    import trimesh
 
 MESH_FORMATS = (".obj", ".ply", ".stl", ".glb")
 
@@ -24,20 +28,31 @@ def mesh_format(path: str | Path) -> str:
     return suffix[1:]
 
 
-def write_mesh(mesh: TriangleMesh, path: str | Path, color: str | None = None) -> None:
-    """Write one mesh atomically in the format its extension names."""
+def trimesh_of(mesh: TriangleMesh, color: str | None = None) -> trimesh.Trimesh:
+    """The mesh as a trimesh.Trimesh, unprocessed, with its normals and, given a colour
+    "#rrggbb", that colour on every face."""
     import trimesh
 
-    fmt = mesh_format(path)
-    tm = trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_normals=mesh.normals, process=False)
+    out = trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_normals=mesh.normals,
+                          process=False)
     if color:
         rgb = [int(color[i:i + 2], 16) for i in (1, 3, 5)]
-        tm.visual.face_colors = np.tile([*rgb, 255], (len(mesh.faces), 1))
-    data = tm.export(file_type=fmt)
+        out.visual.face_colors = np.tile([*rgb, 255], (len(mesh.faces), 1))
+    return out
+
+
+def write_mesh(mesh: TriangleMesh, path: str | Path, color: str | None = None) -> None:
+    """Write one mesh atomically in the format its extension names."""
+    fmt = mesh_format(path)
+    data = trimesh_of(mesh, color).export(file_type=fmt)
     atomic_write_bytes(path, data.encode("utf-8") if isinstance(data, str) else data)
 
 
-def _to_original(mesh: TriangleMesh, normalization: Normalization) -> TriangleMesh:
+def in_frame(mesh: TriangleMesh, normalization: Normalization,
+             original_frame: bool) -> TriangleMesh:
+    """The mesh (normalised frame) mapped to the shape's original frame when asked."""
+    if not original_frame:
+        return mesh
     return TriangleMesh(normalization.to_original(mesh.vertices), mesh.faces, mesh.normals)
 
 
@@ -57,7 +72,7 @@ def export_abstraction(abstraction: Abstraction, path: str | Path, *, per_primit
         raise SweepeditError(f"{path}: the abstraction has no primitives to export")
 
     def framed(mesh: TriangleMesh) -> TriangleMesh:
-        return _to_original(mesh, abstraction.normalization) if original_frame else mesh
+        return in_frame(mesh, abstraction.normalization, original_frame)
 
     if not per_primitive:
         write_mesh(framed(solid_union(abstraction.primitives, stations, profile_points)), path)
