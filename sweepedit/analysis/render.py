@@ -80,10 +80,7 @@ def render_abstraction(abstraction: Abstraction, shape: Shape | None, path_png: 
 
     plotter = _offscreen_plotter(window_size)
     try:
-        plotter.set_background("white")
-        if shape is not None:
-            _add_shape(plotter, shape, opacity=0.15)
-        _add_primitives(plotter, abstraction)
+        _draw_abstraction(plotter, abstraction, shape)
         caption = title
         if caption is None:
             caption = f"{shape.name}  " if shape is not None else ""
@@ -102,10 +99,7 @@ def show_abstraction(abstraction: Abstraction, shape: Shape | None,
 
     _quiet_without_display()  # a notebook's static picture is rendered off screen
     plotter = pv.Plotter(window_size=list(window_size))
-    plotter.set_background("white")
-    if shape is not None:
-        _add_shape(plotter, shape, opacity=0.15)
-    _add_primitives(plotter, abstraction)
+    _draw_abstraction(plotter, abstraction, shape)
     _finish_view(plotter, shape, f"{len(abstraction.visible())} primitives", None)
     plotter.show()
 
@@ -138,6 +132,14 @@ def render_contact_sheet(items: Sequence[tuple[str, Shape | None, Abstraction]],
 
 
 # --------------------------------------------------------------------------- helpers
+
+
+def _draw_abstraction(plotter: Any, abstraction: Abstraction, shape: Shape | None) -> None:
+    """The visible primitives over the shape's faint surface, on white."""
+    plotter.set_background("white")
+    if shape is not None:
+        _add_shape(plotter, shape, opacity=0.15)
+    _add_primitives(plotter, abstraction)
 
 
 def _add_shape(plotter: Any, shape: Shape, opacity: float) -> None:
