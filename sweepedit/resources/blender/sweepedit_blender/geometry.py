@@ -1,4 +1,4 @@
-"""The sweep primitive's math that the Blender side needs, in plain Python (no bpy).
+"""The sweep primitive's math that the Blender side needs, in plain Python and numpy (no bpy).
 
 The definitions are those of sweepedit's docs/primitive.md: a clamped quadratic B-spline
 axis with uniform interior knots, a superellipse profile |x/a|^d + |y/b|^d <= 1, a
@@ -166,33 +166,10 @@ def axis_resolution(n_control_points: int, resolution_scale: float = 1.0) -> int
 
 def fit_scaling_free(ts: list[float], fs: list[float], k: int) -> list[float]:
     """Least squares c0..ck of g(t) = c0 + c1 t + ... + ck t^k through (t, f) points
-    (normal equations; k is small)."""
-    n = k + 1
-    A = [[0.0] * n for _ in range(n)]
-    r = [0.0] * n
-    for t, f in zip(ts, fs, strict=False):
-        row = [t ** i for i in range(n)]
-        for i in range(n):
-            r[i] += row[i] * f
-            for j in range(n):
-                A[i][j] += row[i] * row[j]
-    return _solve(A, r)
+    (numpy, which Blender bundles)."""
+    from numpy.polynomial import polynomial
 
-
-def _solve(A: list[list[float]], r: list[float]) -> list[float]:
-    """Gaussian elimination with partial pivoting; a singular system gives zeros."""
-    n = len(r)
-    M = [[*row[:], r[i]] for i, row in enumerate(A)]
-    for col in range(n):
-        piv = max(range(col, n), key=lambda i: abs(M[i][col]))
-        if abs(M[piv][col]) < 1e-15:
-            return [0.0] * n
-        M[col], M[piv] = M[piv], M[col]
-        for i in range(n):
-            if i != col:
-                factor = M[i][col] / M[col][col]
-                M[i] = [x - factor * y for x, y in zip(M[i], M[col], strict=False)]
-    return [M[i][n] / M[i][i] for i in range(n)]
+    return [float(c) for c in polynomial.polyfit(ts, fs, k)]
 
 
 def fit_degree(points: list[tuple[float, float]], a: float, b: float) -> float:
